@@ -1,0 +1,176 @@
+"""Tests of planner.py: the quintic of Eqs. (18)-(19), IDM, and the base planner's behaviour."""
+import numpy as np
+import pytest
+
+import planner
+from planner import PlannerConfig, base_action, idm_acceleration, quintic_coefficients
+
+CFG = PlannerConfig()
+STRAIGHT_S = np.array([0.0, 500.0])  # [m] a straight path along +x from the origin
+STRAIGHT_XY = np.array([[0.0, 0.0], [500.0, 0.0]])  # [m]
+NOBODY = np.zeros((0, 4))
+
+
+def quintic_at(c, t, derivative=0):
+    """l^(n)(t) of Eq. (18) for coefficients c = (c1, ..., c6) on the last axis."""
+    exponents = np.arange(5, -1, -1)
+    factors = np.array([np.prod(np.arange(e, e - derivative, -1)) if e >= derivative else 0.0
+                        for e in exponents])
+    return (c * factors * np.asarray(t)[..., None] ** np.maximum(exponents - derivative, 0)).sum(-1)
+
+
+def drive(s, v, others_at, seconds, path=(STRAIGHT_S, STRAIGHT_XY)):
+    """Apply a_base every dt by Euler steps as SUMO does; yields (t, s, v, a_base, mode) after each."""
+    a = 0.0
+    for n in range(round(seconds / CFG.dt)):
+        a_base, mode = base_action(s, v, a, *path, others_at(n * CFG.dt), CFG)
+        v_new = max(0.0, v + a_base * CFG.dt)
+        a = (v_new - v) / CFG.dt  # the realised acceleration, as the environment passes it
+        s, v = s + v_new * CFG.dt, v_new
+        yield (n + 1) * CFG.dt, s, v, a_base, mode
+
+
+# ---- Eqs. (18)-(19): the quintic --------------------------------------------------------
+
+def test_quintic_meets_the_six_boundary_conditions_of_eq19():
+    rng = np.random.default_rng(0)
+    n = 500
+    l0, le = rng.uniform(-50, 50, n), rng.uniform(-50, 150, n)
+    v0, ve = rng.uniform(0, 15, n), rng.uniform(0, 15, n)
+    a0, ae = rng.uniform(-3, 2, n), rng.uniform(-3, 2, n)
+    te = rng.uniform(0.5, 8.0, n)
+    c = quintic_coefficients(l0, v0, a0, le, ve, ae, te)
+    assert c.shape == (n, 6)
+    for derivative, start, end in ((0, l0, le), (1, v0, ve), (2, a0, ae)):
+        np.testing.assert_allclose(quintic_at(c, 0.0 * te, derivative), start, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(quintic_at(c, te, derivative), end, rtol=0, atol=1e-9)
+
+
+def test_rest_to_rest_in_one_second_is_the_smoothstep_quintic():
+    # l(t) = 10 t^3 - 15 t^4 + 6 t^5 in the order c1 t^5 + ... + c6
+    np.testing.assert_allclose(quintic_coefficients(0, 0, 0, 1, 0, 0, 1), [6, -15, 10, 0, 0, 0], atol=1e-12)
+
+
+def test_batched_solve_equals_one_by_one_and_broadcasts():
+    rng = np.random.default_rng(1)
+    args = [rng.uniform(0.5, 5.0, 20) for _ in range(7)]
+    batch = quintic_coefficients(*args)
+    for i in range(20):
+        np.testing.assert_allclose(batch[i], quintic_coefficients(*(a[i] for a in args)), rtol=1e-12)
+    grid = quintic_coefficients(0.0, np.arange(3.0)[:, None], 0.0, 10.0, np.arange(4.0), 0.0, 2.0)
+    assert grid.shape == (3, 4, 6)
+    np.testing.assert_allclose(grid[2, 3], quintic_coefficients(0.0, 2.0, 0.0, 10.0, 3.0, 0.0, 2.0))
+
+
+def test_lattice_unit_responses_equal_the_full_solve():
+    """base_action combines three precomputed responses; they must equal solving Eq. (19) anew."""
+    lattice = planner.lattice(CFG)
+    v0, a0 = 7.3, -1.2
+    combined = lattice.fixed + v0 * lattice.per_v0 + a0 * lattice.per_a0
+    np.testing.assert_allclose(combined, lattice.trajectories(v0, a0), atol=1e-9)
+    # Each candidate starts at (0, v0, a0) and, after t_e, keeps v_e at zero acceleration.
+    np.testing.assert_allclose(combined[:3, 0], np.array([[0.0], [v0], [a0]]) + 0 * lattice.te, atol=1e-12)
+    last = len(lattice.times) - 1
+    np.testing.assert_allclose(combined[1, last], lattice.ve, atol=1e-9)
+    np.testing.assert_allclose(combined[2, last], 0.0, atol=1e-12)
+
+
+# ---- IDM ---------------------------------------------------------------------------------
+
+def test_idm_by_hand():
+    params = dict(a_max=2.0, b=2.0, s0=2.0, time_headway=1.5)
+    assert idm_acceleration(10.0, 10.0, np.inf, 0.0, **params) == pytest.approx(0.0, abs=1e-12)
+    assert idm_acceleration(0.0, 10.0, np.inf, 0.0, **params) == pytest.approx(2.0)
+    # v = 10, v0 = 15, gap 20 m, closing at 2 m/s: s* = 2 + 10 * 1.5 + 10 * 2 / (2 sqrt(2 * 2)) = 22 m
+    expected = 2.0 * (1 - (10 / 15) ** 4 - (22 / 20) ** 2)
+    assert idm_acceleration(10.0, 15.0, 20.0, 2.0, **params) == pytest.approx(expected)
+    both = idm_acceleration(np.array([0.0, 10.0]), 15.0, np.array([np.inf, 20.0]), np.array([0.0, 2.0]), **params)
+    np.testing.assert_allclose(both, [2.0, expected])
+
+
+# ---- prediction against the path -----------------------------------------------------------
+
+def test_perpendicular_crosser_occupies_the_path_in_a_closed_form_window():
+    # 10 m/s northward, 40 m south of the path at x = 40: its 5 x 2 m box is within the band
+    # |y| < 1 + 2.5 + 0.5 = 4 m from t = 3.6 s to 4.4 s, at s = 40 m, with 1 m of it along the path.
+    crosser = np.array([[40.0, -40.0, 10.0, np.pi / 2]])
+    occ = planner.path_occupancy(crosser, planner.path_segments(STRAIGHT_S, STRAIGHT_XY), CFG)
+    on = np.flatnonzero(occ.t_in[0] <= occ.t_out[0])
+    assert len(on) == 1
+    np.testing.assert_allclose([occ.t_in[0, on[0]], occ.t_out[0, on[0]]], [3.6, 4.4])
+    assert occ.s_start[0, on[0]] == pytest.approx(40.0)
+    assert occ.s_rate[0, on[0]] == pytest.approx(0.0, abs=1e-9)
+    assert occ.half_along[0, on[0]] == pytest.approx(1.0)
+
+
+# ---- the base planner ---------------------------------------------------------------------
+
+def test_drives_up_to_the_target_speed_on_an_empty_road():
+    a_first, mode = base_action(0.0, 0.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
+    assert a_first > 0 and mode == "drive"
+    run = list(drive(0.0, 0.0, lambda t: NOBODY, seconds=40.0))
+    assert all(mode == "drive" for *_, mode in run)
+    last_10_s = [v for t, s, v, a, mode in run if t > 30.0]
+    assert min(last_10_s) > CFG.v_target - 0.1 and max(last_10_s) < CFG.v_target + 0.1
+
+
+def test_stops_behind_a_stopped_vehicle_without_reaching_it():
+    car = np.array([[30.0, 0.0, 0.0, 0.0]])  # stopped on the path, 30 m ahead (centre to centre)
+    a_first, mode = base_action(0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, car, CFG)
+    assert a_first < 0 and mode == "stop"
+    run = list(drive(0.0, 8.0, lambda t: car, seconds=20.0))
+    bumper_gaps = [30.0 - s - CFG.length for t, s, v, a, mode in run]
+    assert min(bumper_gaps) > 1.0
+    assert run[-1][2] < 0.05  # stopped
+
+
+def test_idm_caps_the_planner_behind_a_close_leader_eq23():
+    # Leader 20 m ahead (15 m bumper to bumper) at the ego's 10 m/s: keeping the speed is
+    # collision-free, so the lattice says a_t1 = 0, but IDM wants 15 + 2 m of gap and brakes.
+    leader = np.array([[20.0, 0.0, 10.0, 0.0]])
+    a_base, mode = base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, leader, CFG)
+    a_idm = idm_acceleration(10.0, CFG.v_target, 15.0, 0.0, CFG.a_max, CFG.idm_comfort_decel,
+                             CFG.idm_min_gap, CFG.idm_time_headway, CFG.idm_delta)
+    assert mode == "drive" and a_idm < -1.0
+    assert a_base == pytest.approx(a_idm)
+
+
+def test_brakes_in_emergency_when_no_trajectory_is_free():
+    car = np.array([[9.0, 0.0, 0.0, 0.0]])  # stopped 4 m ahead of the bumper; at 10 m/s nothing stops in time
+    assert base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, car, CFG) == (CFG.a_min, "brake")
+
+
+def test_crossing_vehicle_timed_to_meet_the_ego_slows_it_but_one_already_past_does_not():
+    empty, _ = base_action(0.0, CFG.v_target, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
+    # At 10 m/s both reach (40, 0) in 4 s.
+    meeting = np.array([[40.0, -40.0, 10.0, np.pi / 2]])
+    a_meeting, _ = base_action(0.0, CFG.v_target, 0.0, STRAIGHT_S, STRAIGHT_XY, meeting, CFG)
+    assert a_meeting < empty - 0.5
+    past = np.array([[40.0, 10.0, 10.0, np.pi / 2]])  # already across, driving away
+    assert base_action(0.0, CFG.v_target, 0.0, STRAIGHT_S, STRAIGHT_XY, past, CFG)[0] == pytest.approx(empty)
+
+
+def test_followers_and_the_next_lane_do_not_slow_the_ego():
+    empty = base_action(20.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
+    others = np.array([[5.0, 0.0, 12.0, 0.0],  # on the path behind the ego, faster
+                       [-10.0, 0.0, 12.0, 0.0],  # behind the path's start, on its extension
+                       [40.0, 3.2, 8.0, 0.0],  # next lane, same direction
+                       [60.0, 3.2, 10.0, np.pi]])  # next lane, oncoming
+    assert base_action(20.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, others, CFG) == pytest.approx(empty)
+
+
+def test_follows_a_slower_leader_on_a_bend_at_a_safe_gap():
+    bend = np.linspace(0.0, np.pi / 2, 30)  # a left turn of radius 12 m between two straights
+    xy = np.vstack([[[-60.0, 0.0]], np.c_[-12 + 12 * np.sin(bend), 12 * (1 - np.cos(bend))], [[0.0, 60.0]]])
+    s_nodes = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+
+    def leader_at(t):  # 4 m/s along the path from 20 m ahead of the ego's start, heading on the path
+        s = 30.0 + 4.0 * t
+        i = np.searchsorted(s_nodes, s) - 1
+        heading = np.arctan2(*(xy[i + 1] - xy[i])[::-1])
+        return np.array([[np.interp(s, s_nodes, xy[:, 0]), np.interp(s, s_nodes, xy[:, 1]), 4.0, heading]])
+
+    run = list(drive(10.0, 8.0, leader_at, seconds=15.0, path=(s_nodes, xy)))
+    gaps = [30.0 + 4.0 * t - s - CFG.length for t, s, v, a, mode in run]
+    assert min(gaps) > 3.0
+    assert abs(run[-1][2] - 4.0) < 1.0  # settled near the leader's speed
