@@ -22,6 +22,7 @@ Map from the paper to this file
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import os
@@ -31,6 +32,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
 
 import planner
 
@@ -67,6 +71,7 @@ class EnvConfig:
     """The environment's constants. Where the paper gives none, the comment says why."""
 
     scenario: str = "intersection"
+    spawn_gap: float | None = None  # [s] overrides the scenario's t_spawn; math.inf: no humans (tests)
     dt: float = 0.2  # [s] SUMO step and decision step. Not in the paper: 5 Hz keeps episodes
     #                  at 50-150 decisions, so the +-20 terminal rewards of Eq. (31) weigh as
     #                  much as the speed reward, and T_max steps span ~2 s of "waiting for a chance".
@@ -149,7 +154,8 @@ def observe(ego_xy, ego_heading, ego_speed, task, zone, others, cfg: EnvConfig) 
     """Eqs. (27)-(30): s = (s_ego, s_sur), 3 + 3 + 1 + 12 x 5 = 67 numbers.
 
     ego_xy [m] centre, ego_heading [rad, CCW from +x], ego_speed [m/s]; task, zone: the
-    indices of the one-hots h1, h2; others: (M, 4) centres x, y [m], speed [m/s], heading [rad].
+    indices of the one-hots h1, h2; others: (M, >= 4) centres x, y [m], speed [m/s], heading [rad]
+    (further columns are ignored).
     """
     s_sur = np.zeros((6, 2, 5))
     if len(others):
@@ -378,6 +384,8 @@ class DrivingEnv:
     constrained baselines, 1.0 at the step the ego collides and 0.0 otherwise.
     """
 
+    _owner: dict = {}  # the env that holds this process's libsumo (False) / TraCI (True) simulation
+
     def __init__(self, cfg: EnvConfig = EnvConfig(), gui: bool = False,
                  planner_cfg: planner.PlannerConfig | None = None):
         if cfg.scenario not in SCENARIOS:
@@ -413,7 +421,8 @@ class DrivingEnv:
         if self.gui:
             args += ["--start", "--quit-on-end", "--delay", "50"]
         try:
-            if self.running:
+            if DrivingEnv._owner.get(self.gui) is not None:  # one simulation per process: take it over
+                DrivingEnv._owner[self.gui].running = False
                 self.sim.load(args)
             else:
                 self.sim.start([binary] + args)
@@ -421,6 +430,7 @@ class DrivingEnv:
             raise SystemExit(f"SUMO cannot load {self.net_file.name}: {str(e).strip() or type(e).__name__}. "
                              "Rebuild the networks with `python scenarios/build.py`.") from None
         self.running = True
+        DrivingEnv._owner[self.gui] = self
         self.ego_alive = False
         sim = self.sim
         for vt, maxspeed in (("human", 16.0), ("egotype", 16.0)):
@@ -431,7 +441,7 @@ class DrivingEnv:
             sim.vehicletype.setSpeedDeviation(vt, 0.0)
         sim.vehicletype.setImpatience("human", c.sc.impatience)
         self.t_start = sim.simulation.getTime()
-        self.next_spawn = self.t_start
+        self.next_spawn = self.t_start + self.rng.exponential(self._spawn_gap)
         self.n_humans = 0
         self.humans: dict[str, np.ndarray] = {}  # id -> (alpha1..4, svo, decel [m/s^2], accel [m/s^2])
         self.decisions: dict[str, int] = {}  # humans now playing the game -> CROSS / YIELD
@@ -442,10 +452,15 @@ class DrivingEnv:
             self._spawn_humans()
             sim.simulationStep()
 
+    @property
+    def _spawn_gap(self) -> float:
+        return self.cfg.sc.spawn_gap if self.cfg.spawn_gap is None else self.cfg.spawn_gap
+
     def close(self):
         if self.running:
             self.sim.close()
             self.running = False
+            DrivingEnv._owner[self.gui] = None
 
     # ---- traffic (Table 1) -------------------------------------------------------------
 
@@ -454,7 +469,7 @@ class DrivingEnv:
         sim, c, rng = self.sim, self.cfg, self.rng
         now = sim.simulation.getTime()
         while self.next_spawn <= now:
-            self.next_spawn += rng.exponential(c.sc.spawn_gap)
+            self.next_spawn += rng.exponential(self._spawn_gap)
             vid = f"h{self.n_humans}"
             self.n_humans += 1
             sim.vehicle.add(vid, self.routes[rng.integers(len(self.routes))], typeID="human",
@@ -524,7 +539,10 @@ class DrivingEnv:
     # ---- Gymnasium API -----------------------------------------------------------------
 
     def reset(self, seed: int | None = None, options: dict | None = None):
-        """Spawn the ego on a random free lane and route. A seed restarts SUMO and the traffic."""
+        """Spawn the ego on a random free lane and route. A seed restarts SUMO and the traffic.
+
+        options={"route": "S_N"} picks the ego's route (see scenarios/*.rou.xml).
+        """
         c, sim = self.cfg, self.sim
         if seed is not None:
             self.rng = np.random.default_rng(seed)
@@ -534,7 +552,8 @@ class DrivingEnv:
         if self.ego_alive:
             self._end_episode()
         for _ in range(round(60.0 / c.dt)):  # wait (at most 60 s) for a free spawn lane
-            free = [t for t in self.tasks if self._lane_start_free(t["first"])]
+            free = [t for t in self.tasks if self._lane_start_free(t["first"])
+                    and t["route"] == (options or {}).get("route", t["route"])]
             if free:
                 self.task = free[self.rng.integers(len(free))]
                 # "max": the depart speed, lowered by SUMO if that is unsafe behind a queue
@@ -562,6 +581,7 @@ class DrivingEnv:
         self.s0 = sim.vehicle.getLanePosition(EGO) - sim.vehicle.getDistance(EGO)  # odometer offset [m]
         self.accel = 0.0
         self.waited = 0.0
+        self._headings = {}
         self._read()
         self.episodes += 1
         return self.obs, self._info(False, False, False)
@@ -598,7 +618,7 @@ class DrivingEnv:
         if self._a_base is None:
             L = self.cfg.length
             self._a_base = planner.base_action(self.s - L / 2, self.v, self.accel, self.task["s"],
-                                               self.task["xy"], self.others, self.planner_cfg)[0]
+                                               self.task["xy"], self.others[:, :4], self.planner_cfg)[0]
         return self._a_base
 
     def _info(self, collided, arrived, timeout):
@@ -644,9 +664,12 @@ class DrivingEnv:
             raw = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE]) for k in ids])
             heading = np.radians(90.0 - raw[:, 3])
             centre = raw[:, :2] - 0.5 * L * np.stack([np.cos(heading), np.sin(heading)], 1)
-            self.others = np.column_stack([centre, raw[:, 2], heading])
+            before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading)])
+            yaw_rate = wrap_angle(heading - before) / self.cfg.dt  # [rad/s] over the last step
+            self._headings = dict(zip(ids, heading))
+            self.others = np.column_stack([centre, raw[:, 2], heading, yaw_rate])
         else:
-            self.others = np.zeros((0, 4))
+            self.others = np.zeros((0, 5))
         self.other_ids = ids
         self._a_base = None
         self.obs = observe(self.xy, self.heading, self.v, self.task["task"], zone, self.others, self.cfg)
@@ -690,6 +713,10 @@ class DrivingEnv:
         decel_h = v_h**2 / (2.0 * np.maximum(d_h - c.stop_margin, 0.1)) / p[:, 5]
         decel_e = self.v**2 / (2.0 * np.maximum(d_e - c.stop_margin, 0.1)) / -c.a_min
         choice = level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, self.waited, p[:, :4], p[:, 4], c)
+        # A human already inside the junction has committed: it clears the junction rather than
+        # stop in it (humans stopped mid-junction block each other: the all-way stop gridlocks).
+        inside = np.array([sim.vehicle.getRoadID(h).startswith(":") for h in ids])
+        choice = np.where(inside, CROSS, choice)
         for h, k, dh, vh, b, a in zip(ids, choice, d_h, v_h, p[:, 5], p[:, 6]):
             if self.decisions.get(h) != k:
                 sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
@@ -715,18 +742,607 @@ class DrivingEnv:
 
 
 # --------------------------------------------------------------------------------------
-# Evaluation (Table 3)
+# Soft Actor-Critic: one implementation for the actor (continuous) and the timing taker
+# (discrete). Eqs. (9), (10), (13), (14); Table 2. One update per simulator step (5x10^5 on a
+# 2-core CPU in the paper's budget), so the twin critics are one batched network and all
+# parameters share one fused Adam.
+# --------------------------------------------------------------------------------------
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # clamp of the Gaussian's log std; Haarnoja et al. (2018)'s values
+LOG_2PI, LOG_2 = math.log(2 * math.pi), math.log(2.0)
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    batch_size: int = 256  # B, Table 2
+    buffer_size: int = 1_000_000  # N_buffer, Table 2
+    learning_starts: int = 2_000  # N_start, Table 2: env steps before the first update
+    hidden: int = 256  # D_hidden, Table 2; the paper says "simple MLP": two hidden layers, as in SAC (Haarnoja 2018)
+    gamma: float = 0.99  # gamma, Table 2; the timing taker discounts a decision by gamma^T, Eq. (9)
+    tau: float = 0.005  # tau, Table 2: Polyak weight of the target critics
+    lr: float = 3e-4  # lr, Table 2: Adam, for policy, critics and temperature alike (the paper gives one lr)
+    init_alpha: float = 1.0  # not in the paper: starting temperature alpha, log alpha = 0 as in SAC (Haarnoja 2018b)
+    # Not in the paper: the discrete head's target entropy is this fraction of log(n). 0.98 log n (Christodoulou
+    # 2019) is almost uniform for n = 10 and keeps alpha growing; 0.3 log 10 = 0.69 ~ log 2, the entropy of a
+    # coin flip between two timings: the timing taker may commit, but never to a single T with certainty.
+    target_entropy_fraction: float = 0.3
+
+
+def mlp(in_dim: int, out_dim: int, hidden: int) -> nn.Sequential:
+    """Table 2: two hidden layers of D_hidden units with ReLU."""
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                         nn.Linear(hidden, out_dim))
+
+
+class TwinCritic(nn.Module):
+    """Q1 and Q2 as one batched MLP: forward(obs (B, obs_dim), act (B, act_dim) or None) -> (2, B, out_dim).
+
+    out_dim is 1 for Q(s, a), n for Q(s, .) of a discrete head. Layer k holds the weights of both critics
+    stacked, (2, in, out), and biases (2, 1, out), applied by one torch.baddbmm. The first layer's weights are
+    two blocks, w1_obs and w1_act: the same as feeding cat(obs, act), without the copy, and the policy loss
+    back-propagates into the act rows only.
+    frozen=True evaluates with detached weights: gradients reach act, never the critic (policy loss).
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, out_dim: int, hidden: int):
+        super().__init__()
+
+        def uniform(fan_in: int, *shape: int) -> nn.Parameter:  # nn.Linear's default initialisation
+            return nn.Parameter(torch.empty(2, *shape).uniform_(-fan_in**-0.5, fan_in**-0.5))
+
+        fan_in = obs_dim + act_dim
+        self.w1_obs, self.b1 = uniform(fan_in, obs_dim, hidden), uniform(fan_in, 1, hidden)
+        self.w1_act = uniform(fan_in, act_dim, hidden) if act_dim else None
+        self.w2, self.b2 = uniform(hidden, hidden, hidden), uniform(hidden, 1, hidden)
+        self.w3, self.b3 = uniform(hidden, hidden, out_dim), uniform(hidden, 1, out_dim)
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor | None = None, frozen: bool = False) -> torch.Tensor:
+        w1_obs, w1_act, b1, w2, b2, w3, b3 = (p.detach() if frozen and p is not None else p for p in
+                                              (self.w1_obs, self.w1_act, self.b1, self.w2, self.b2, self.w3, self.b3))
+        h = torch.baddbmm(b1, obs.expand(2, *obs.shape), w1_obs)
+        if act is not None:
+            h = h.baddbmm_(act.expand(2, *act.shape), w1_act)
+        h = torch.baddbmm(b2, h.relu_(), w2).relu_()
+        return torch.baddbmm(b3, h, w3)
+
+
+class SAC:
+    """SAC agent: continuous if act_dim is given (actor), discrete if n_actions is given (timing taker).
+
+    The timing taker's observation is cat(s, a) (Eq. (5)), so its obs_dim is the state's plus act_dim. Its
+    choices are the paper's timings T = 1..n_actions: `act` returns T, the buffer stores T, and column T - 1
+    of Q(s, .) and pi(.|s) belongs to T.
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int | None = None, n_actions: int | None = None,
+                 low=None, high=None, cfg: SACConfig = SACConfig()):
+        assert (act_dim is None) != (n_actions is None), "give act_dim (continuous) or n_actions (discrete)"
+        self.cfg, self.discrete = cfg, n_actions is not None
+        if self.discrete:
+            self.n_actions = n_actions
+            self.policy = mlp(obs_dim, n_actions, cfg.hidden)  # logits of pi(T|s, a), Eq. (10)
+            self.critic = TwinCritic(obs_dim, 0, n_actions, cfg.hidden)  # Q(s, a, T) for every T, Eq. (9)
+            self.target_entropy = cfg.target_entropy_fraction * math.log(n_actions)
+        else:
+            self.act_dim = act_dim
+            low, high = (np.broadcast_to(np.asarray(v, np.float32), (act_dim,)) for v in (low, high))
+            self.action_scale = torch.as_tensor((high - low) / 2)
+            self.action_bias = torch.as_tensor((high + low) / 2)
+            self.log_prob_offset = -0.5 * LOG_2PI - 2 * LOG_2 - self.action_scale.log()  # (act_dim,)
+            self.policy = mlp(obs_dim, 2 * act_dim, cfg.hidden)  # mean and log std of pi(a|s), Eq. (14)
+            self.critic = TwinCritic(obs_dim, act_dim, 1, cfg.hidden)  # Q(s, a), Eq. (13)
+            self.target_entropy = -float(act_dim)  # SAC's heuristic -dim(A) (Haarnoja 2018b)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)  # Q-hat: never trained
+        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
+        # Adam is per parameter, so one optimizer over all of them equals one per network (and is one kernel)
+        params = [*self.policy.parameters(), *self.critic.parameters(), self.log_alpha]
+        self.optimizer = torch.optim.Adam(params, lr=cfg.lr, fused=True)
+        self._online, self._target = list(self.critic.parameters()), list(self.critic_target.parameters())
+
+    def squashed_gaussian(self, obs: torch.Tensor, deterministic: bool = False):
+        """Continuous head. obs (B, obs_dim) -> a (B, act_dim) in [low, high], log pi(a|s) (B,).
+
+        a = bias + scale tanh(u), u = mu + sigma eps (reparameterised); eps = 0 when deterministic.
+        """
+        mu, log_std = self.policy(obs).chunk(2, dim=-1)
+        log_std = log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+        eps = torch.zeros_like(mu) if deterministic else torch.randn_like(mu)
+        u = torch.addcmul(mu, log_std.exp(), eps)
+        a = torch.addcmul(self.action_bias, self.action_scale, torch.tanh(u))
+        # log pi(a|s) = log N(u; mu, sigma) - log|da/du|, da/du = scale (1 - tanh(u)^2), and
+        # log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), stable for large |u|; constants in log_prob_offset
+        log_prob = self.log_prob_offset - log_std - 0.5 * eps.square() + 2 * (u + F.softplus(-2 * u))
+        return a, log_prob.sum(-1)
+
+    def timing_distribution(self, obs: torch.Tensor):
+        """Discrete head. obs (B, obs_dim) -> pi(T|s) (B, n), log pi(T|s) (B, n), column T - 1 for T."""
+        log_probs = F.log_softmax(self.policy(obs), dim=-1)
+        return log_probs.exp(), log_probs
+
+    @torch.inference_mode()
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray | int:
+        """obs (obs_dim,) or (B, obs_dim) -> action (act_dim,) / (B, act_dim), or timing T (int / (B,) ints)."""
+        x = torch.as_tensor(obs, dtype=torch.float32)
+        single = x.dim() == 1
+        x = x.unsqueeze(0) if single else x
+        if self.discrete:
+            probs, _ = self.timing_distribution(x)
+            choice = probs.argmax(-1) if deterministic else torch.multinomial(probs, 1).squeeze(-1)
+            timing = (choice + 1).numpy()
+            return int(timing[0]) if single else timing
+        a = self.squashed_gaussian(x, deterministic)[0].numpy()
+        return a[0] if single else a
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        """One gradient step of the critics, the policy and the temperature on one batch (see ReplayBuffer).
+
+        Alg. 1 lines 13-14 (timing taker) and 23-24 (actor). Departure: the three losses are all taken at
+        the parameters before the step (as in Haarnoja et al.'s reference implementation), not the policy
+        loss after the critic step; this saves two backward passes and, in the discrete case, a critic
+        forward pass. They are summed: their parameter sets are disjoint (the policy loss sees frozen critics,
+        the target is computed without gradient), so one backward gives each network its own loss's gradient.
+        """
+        loss_q, q = critic_loss(self, batch)
+        # the discrete policy loss needs Q(s, .) at these parameters: reuse the critic's forward pass
+        loss_pi, entropy = policy_loss(self, batch["obs"], q.detach() if self.discrete else None)
+        loss_alpha = temperature_loss(self.log_alpha, entropy, self.target_entropy)
+        self.optimizer.zero_grad(set_to_none=True)
+        (loss_q + loss_pi + loss_alpha).backward()
+        self.optimizer.step()
+        # Table 2: soft target update Q-hat <- (1 - tau) Q-hat + tau Q. The text below Eq. (12) says theta_a
+        # "is copied after several iterations"; Table 2's tau is SAC's Polyak averaging, used for both agents.
+        with torch.no_grad():
+            torch._foreach_lerp_(self._target, self._online, self.cfg.tau)
+        with torch.no_grad():  # one conversion to Python floats instead of six .item() calls
+            logs = torch.stack([loss_q, loss_pi, loss_alpha, self.log_alpha.exp(), entropy.mean(), q.mean()])
+        return dict(zip(("critic_loss", "policy_loss", "temperature_loss", "alpha", "entropy", "q"), logs.tolist()))
+
+    def state_dict(self) -> dict:
+        """Plain tensors and dicts only: loadable with torch.load(weights_only=True)."""
+        return {"policy": self.policy.state_dict(), "critic": self.critic.state_dict(),
+                "critic_target": self.critic_target.state_dict(), "log_alpha": self.log_alpha.detach().clone(),
+                "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.policy.load_state_dict(state["policy"])
+        self.critic.load_state_dict(state["critic"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        self.optimizer.load_state_dict(state["optimizer"])
+
+
+@torch.no_grad()
+def td_target(agent: SAC, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Target y (B,) of both critics, without gradient: Eq. (9) (timing taker) and Eq. (13) (actor).
+
+    y = r + discount (1 - done) V(s'), discount = gamma^T (gamma for the actor), with the soft value
+    V(s') = E_{a'~pi}[min(Q1', Q2')(s', a') - alpha log pi(a'|s')] of the target critics.
+    EQUATIONS.md note 2: (13) is printed with max_{a'} Q-hat; SAC's target is this soft value.
+    """
+    alpha, next_obs = agent.log_alpha.exp(), batch["next_obs"]
+    if agent.discrete:
+        probs, log_probs = agent.timing_distribution(next_obs)
+        # discrete SAC: V(s') = sum_T' pi(T'|s') [min Q'(s', T') - alpha log pi(T'|s')], the exact expectation
+        v_next = (probs * (agent.critic_target(next_obs).amin(0) - alpha * log_probs)).sum(-1)
+    else:
+        a_next, log_prob = agent.squashed_gaussian(next_obs)
+        # Eq. (13), note 2: V(s') = min(Q1', Q2')(s', a') - alpha log pi(a'|s'), one sample a' ~ pi(.|s')
+        v_next = agent.critic_target(next_obs, a_next).amin(0).squeeze(-1) - alpha * log_prob
+    # Eq. (9): y = r_T + gamma^T (1 - delta) V(s_{t+T});  Eq. (13): the same with T = 1
+    return batch["rew"] + batch["discount"] * (1 - batch["done"]) * v_next
+
+
+def critic_loss(agent: SAC, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Squared TD error of both critics, sum_i mean_B (Q_i(s, a) - y)^2: Eq. (9) and Eq. (13), minimised.
+
+    batch: obs (B, obs_dim), act (B, act_dim) float or (B,) int T in 1..n, rew (B,), next_obs (B, obs_dim),
+    discount (B,), done (B,) in {0, 1} (see ReplayBuffer). Returns the loss and the critics' values at obs:
+    Q(s, a) (2, B), or Q(s, .) (2, B, n) if discrete (the discrete policy loss reuses them).
+    """
+    y = td_target(agent, batch)
+    if agent.discrete:
+        q = agent.critic(batch["obs"])
+        q_taken = q.gather(-1, (batch["act"] - 1).view(1, -1, 1).expand(2, -1, 1)).squeeze(-1)
+    else:
+        q = q_taken = agent.critic(batch["obs"], batch["act"]).squeeze(-1)
+    return (q_taken - y).square().mean(-1).sum(), q
+
+
+def policy_loss(agent: SAC, obs: torch.Tensor, q_obs: torch.Tensor | None = None):
+    """-J(phi) of Eq. (14) (actor) and Eq. (10) (timing taker), minimised.
+
+    continuous: E_s[alpha log pi(a|s) - min(Q1, Q2)(s, a)], a ~ pi(.|s) reparameterised;
+    discrete:   E_s[sum_T pi(T|s) (alpha log pi(T|s) - min(Q1, Q2)(s, T))].
+    obs (B, obs_dim); q_obs: optional critic output (2, B, n) at obs, discrete only (reused, no gradient).
+    The critics are frozen here: gradients flow to the policy only. Returns the loss and the per-sample
+    entropy estimate (B,) (detached): -log pi(a|s) for the sampled a, or the exact entropy if discrete.
+    """
+    alpha = agent.log_alpha.detach().exp()
+    if agent.discrete:
+        probs, log_probs = agent.timing_distribution(obs)
+        if q_obs is None:
+            with torch.no_grad():
+                q_obs = agent.critic(obs)
+        # Eq. (10): max E[Q(s, a, T) + alpha H(pi(.|s, a))], expectation over T exact
+        loss = (probs * (alpha * log_probs - q_obs.amin(0))).sum(-1).mean()
+        entropy = -(probs * log_probs).sum(-1)
+    else:
+        a, log_prob = agent.squashed_gaussian(obs)
+        # Eq. (14): max E[Q(s, a) + alpha H(pi(.|s))], H estimated by -log pi(a|s)
+        loss = (alpha * log_prob - agent.critic(obs, a, frozen=True).amin(0).squeeze(-1)).mean()
+        entropy = -log_prob
+    return loss, entropy.detach()
+
+
+def temperature_loss(log_alpha: torch.Tensor, entropy: torch.Tensor, target_entropy: float) -> torch.Tensor:
+    """Automatic temperature (Haarnoja 2018b): J(alpha) = E[alpha (H - H_bar)], on log alpha.
+
+    entropy (B,) detached; alpha falls when the policy's entropy exceeds the target H_bar, rises otherwise.
+    """
+    return (log_alpha * (entropy - target_entropy)).mean()
+
+
+class ReplayBuffer:
+    """Transitions (s, a, r, s', discount, delta) of Alg. 1 lines 12 (D_T) and 22 (D_a), in preallocated arrays.
+
+    act_shape=(act_dim,), act_dtype=np.float32 for the actor; act_shape=(), act_dtype=np.int64 for the timing
+    taker (it stores T). discount = gamma^T (gamma for the actor); done = delta, 1 only at a true terminal
+    (arrival or collision), not at a time limit. Oldest transitions are overwritten when full.
+    """
+
+    def __init__(self, capacity: int, obs_dim: int, act_shape: tuple = (1,), act_dtype=np.float32):
+        self.capacity, self.ptr, self.size = capacity, 0, 0
+        self.data = {"obs": np.zeros((capacity, obs_dim), np.float32), "act": np.zeros((capacity, *act_shape), act_dtype),
+                     "rew": np.zeros(capacity, np.float32), "next_obs": np.zeros((capacity, obs_dim), np.float32),
+                     "discount": np.zeros(capacity, np.float32), "done": np.zeros(capacity, np.float32)}
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(self, obs, act, rew: float, next_obs, discount: float, done: bool) -> None:
+        for key, value in zip(self.data, (obs, act, rew, next_obs, discount, done)):
+            self.data[key][self.ptr] = value
+        self.ptr, self.size = (self.ptr + 1) % self.capacity, min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        idx = rng.integers(0, self.size, batch_size)
+        return {key: torch.from_numpy(array[idx]) for key, array in self.data.items()}
+
+    def state_dict(self) -> dict:
+        """The filled part only, as tensors (torch.save / torch.load(weights_only=True))."""
+        return {"ptr": self.ptr, **{key: torch.from_numpy(array[: self.size].copy()) for key, array in self.data.items()}}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.size, self.ptr = len(state["obs"]), state["ptr"]
+        for key, array in self.data.items():
+            array[: self.size] = state[key].numpy()
+
+
+# --------------------------------------------------------------------------------------
+# Algorithm 1: the actor, the timing taker, the timing imagination
 # --------------------------------------------------------------------------------------
 
 
-class LatticeIDM:
-    """The base model alone (Table 3's Lattice-IDM row): a = a_base of Eq. (23)."""
+@dataclass(frozen=True)
+class TrainConfig:
+    """Algorithm 1's schedule. None of these is in the paper; each says why its value."""
 
-    name = "lattice-idm"
+    steps: int = 60_000  # simulator steps in all (both loops of Alg. 1 count). The default
+    #                      budget runs in about 20 minutes here; --steps 500000 is N_train of Table 2.
+    sac_fraction: float = 0.4  # Alg. 1 line 2: plain SAC trains for this share of the steps; that
+    #                            model is Table 3's SAC row. The rest alternates the two loops.
+    n_timing: int = 20  # N_T: timing decisions per imagination loop (Alg. 1 lines 4-15). With T
+    #                     averaging ~3-5 steps, imagination takes a little more than half the time.
+    n_actor: int = 60  # N_a: real steps per actor loop (Alg. 1 lines 16-24)
+    timing_learning_starts: int = 500  # decisions in D_T before the timing taker learns: it gets
+    #                                    one sample per decision, ~6x fewer than the actor's N_start
+    log_every: int = 2000  # [steps] between progress lines
+    checkpoint_every: int = 20_000  # [steps] between checkpoints: an interrupted run loses little
 
-    def act(self, obs, env: DrivingEnv, deterministic: bool = True):
-        """-> (executed acceleration [m/s^2], timing factor beta or None)."""
-        return env.base_action(), None
+
+def timing_input(obs, a, low=-3.0, high=2.0):
+    """Eq. (5): the timing taker sees the state and the actor's action (scaled to [-1, 1])."""
+    a = np.asarray(a, dtype=np.float32).reshape(-1)[:1]
+    return np.concatenate([obs, 2.0 * (a - low) / (high - low) - 1.0]).astype(np.float32)
+
+
+def discounted_sum(rewards, gamma: float) -> float:
+    """Eq. (8): r_T = sum_{dt=1..T} gamma^(dt-1) r(s_t, a_bar_{t+dt})."""
+    return float(np.sum(np.asarray(rewards) * gamma ** np.arange(len(rewards))))
+
+
+class Driver:
+    """A trained or planned policy for one of Table 3's rows: act(obs, env) -> (a_bar, beta or None).
+
+    tarl:        a ~ actor, T ~ timing taker, Eq. (12): a_bar = beta(T) a + (1 - beta(T)) a_base
+    sac:         a_bar = a ~ actor
+    sac-lattice: the actor's second output is a switch: a_bar = a_base if it is > 0, else a
+                 (Sec. 5.3: SAC "additionally provides the action generated from the baseline
+                 strategy as optional action for the agent in each decision step")
+    lattice-idm: a_bar = a_base
+    """
+
+    def __init__(self, name: str, actor: SAC | None = None, timing_taker: SAC | None = None):
+        self.name, self.actor, self.timing_taker = name, actor, timing_taker
+        self.sac_cfg = actor.cfg if actor is not None else None
+
+    def act(self, obs, env: DrivingEnv, deterministic: bool = False):
+        if self.name == "lattice-idm":
+            return env.base_action(), None
+        return self.execute(obs, self.actor.act(obs, deterministic), env, deterministic)
+
+    def execute(self, obs, a, env: DrivingEnv, deterministic: bool = False):
+        """The executed action for the actor's output a in state obs."""
+        if self.name == "sac":
+            return float(a[0]), None
+        if self.name == "sac-lattice":
+            return (env.base_action() if a[1] > 0.0 else float(a[0])), None
+        T = self.timing_taker.act(timing_input(obs, a), deterministic)  # Alg. 1 line 18
+        b = float(beta(T))
+        # Eq. (12): a_bar_t = beta(T_t) a_t + (1 - beta(T_t)) a_base,t
+        return blend(float(a[0]), env.base_action(), b), b
+
+
+def driver_states(driver: Driver) -> dict:
+    """The networks a Driver needs, as state_dicts (to rebuild it in another process)."""
+    return {k: agent.state_dict() for k, agent in (("actor", driver.actor), ("timing_taker", driver.timing_taker))
+            if agent is not None}
+
+
+def driver_from_states(name: str, states: dict, sac_cfg: SACConfig | None) -> Driver:
+    """The Driver of Table 3's row `name` from driver_states()."""
+    if name == "lattice-idm":
+        return Driver(name)
+    low, high = ACT_BOUNDS[name]
+    actor = SAC(OBS_DIM, act_dim=len(low), low=low, high=high, cfg=sac_cfg)
+    actor.load_state_dict(states["actor"])
+    timing_taker = None
+    if "timing_taker" in states:
+        timing_taker = SAC(OBS_DIM + 1, n_actions=T_MAX, cfg=sac_cfg)
+        timing_taker.load_state_dict(states["timing_taker"])
+    return Driver(name, actor, timing_taker)
+
+
+ACT_BOUNDS = {"sac": ([-3.0], [2.0]), "tarl": ([-3.0], [2.0]), "sac-lattice": ([-3.0, -1.0], [2.0, 1.0])}
+
+
+class Trainer:
+    """Algorithm 1 (and plain SAC / SAC-Lattice with the same loop), with its log and checkpoints.
+
+    The imagination and the real environment share one SUMO world. libsumo runs one
+    simulation per process, and Algorithm 1 runs its two loops one after the other anyway:
+    lines 4-15 drive the ego by Eq. (7) for N_T timing decisions, then lines 16-24 drive it by
+    Eq. (12) for N_a steps, each loop storing only its own transitions (D_T, D_a). So each
+    loop sees exactly the transitions Algorithm 1 specifies; what they share is the stream
+    of traffic situations, which is what the timing taker must learn to judge. An ego
+    episode may begin in one loop and end in the other.
+    """
+
+    def __init__(self, env: DrivingEnv, algo: str, tc: TrainConfig = TrainConfig(),
+                 sac_cfg: SACConfig = SACConfig(), seed: int = 0, out: Path | None = None, log=print):
+        self.env, self.algo, self.tc, self.sac_cfg, self.seed, self.out, self.log = env, algo, tc, sac_cfg, seed, out, log
+        torch.manual_seed(seed)
+        self.rng = np.random.default_rng(seed)
+        low, high = ACT_BOUNDS[algo]
+        self.actor = SAC(OBS_DIM, act_dim=len(low), low=low, high=high, cfg=sac_cfg)
+        self.actor_buffer = ReplayBuffer(sac_cfg.buffer_size, OBS_DIM, (len(low),))  # D_a
+        self.timing_taker = self.timing_buffer = None
+        if algo == "tarl":
+            self.timing_taker = SAC(OBS_DIM + 1, n_actions=T_MAX, cfg=sac_cfg)
+            self.timing_buffer = ReplayBuffer(sac_cfg.buffer_size, OBS_DIM + 1, (), np.int64)  # D_T
+        self.driver = Driver(algo, self.actor, self.timing_taker)
+        self.step = 0  # simulator steps so far
+        self.updates = {"actor": 0, "timing": 0}
+        self.sac_actor = None  # the step-1 model (Table 3's SAC row), kept when step 1 ends
+        self.episode = dict(ret=0.0, betas=[])
+        self.rows: list[list] = []
+        self.last = {}
+
+    @property
+    def sac_steps(self) -> int:
+        return round(self.tc.sac_fraction * self.tc.steps) if self.algo == "tarl" else self.tc.steps
+
+    # ---- one simulator step, shared by every loop --------------------------------------
+
+    def _env_step(self, a_bar, b):
+        obs2, r, terminated, truncated, info = self.env.step(a_bar)
+        self.step += 1
+        self.episode["ret"] += r
+        if b is not None:
+            self.episode["betas"].append(b)
+        if terminated or truncated:
+            self._episode_end(info)
+        return obs2, r, terminated, truncated
+
+    def _episode_end(self, info):
+        b = self.episode["betas"]
+        row = [self.step, round(self.episode["ret"], 3), int(info["arrival"]), int(info["collision"]),
+               round(info["crossing_time"], 2) if info["arrival"] else "", round(float(np.mean(b)), 4) if b else ""]
+        self.rows.append(row)
+        self.last = dict(zip(LOG_HEADER, row))
+        self.episode = dict(ret=0.0, betas=[])
+        self.obs, _ = self.env.reset()
+
+    def _learn(self, agent: SAC, buffer: ReplayBuffer, starts: int, key: str):
+        if len(buffer) >= starts:
+            agent.update(buffer.sample(self.sac_cfg.batch_size, self.rng))
+            self.updates[key] += 1
+
+    # ---- Alg. 1 line 2 and lines 16-24: the actor's real steps --------------------------
+
+    def actor_step(self, with_timing: bool):
+        """One real step: a_t ~ pi_a, T_t ~ pi_T, execute a_bar_t (Eq. (12) when with_timing),
+        store (s_t, a_t, r(s_t, a_bar_t), s_t+1, delta) in D_a, update the actor."""
+        obs, c = self.obs, self.sac_cfg
+        if len(self.actor_buffer) < c.learning_starts and not with_timing:
+            a = self.rng.uniform(self.actor.action_bias - self.actor.action_scale,
+                                 self.actor.action_bias + self.actor.action_scale).astype(np.float32)
+        else:
+            a = self.actor.act(obs)  # Alg. 1 line 17
+        if with_timing or self.algo != "tarl":
+            a_bar, b = self.driver.execute(obs, a, self.env)  # lines 18-19
+        else:
+            a_bar, b = float(a[0]), None  # step 1 of TARL is plain SAC
+        obs2, r, terminated, truncated = self._env_step(a_bar, b)  # line 20
+        # Alg. 1 line 21: D_a <- D_a u {(s_t, a_t, r(s_t, a_bar_t), s_t+1, delta)}: a_t, not a_bar_t
+        self.actor_buffer.add(obs, a, r, obs2, c.gamma, terminated)
+        self._learn(self.actor, self.actor_buffer, c.learning_starts, "actor")  # lines 22-23
+        if not (terminated or truncated):
+            self.obs = obs2
+
+    # ---- Alg. 1 lines 4-15: one decision of the timing taker in the timing imagination ---
+
+    def imagine(self):
+        """a_t ~ pi_a, T_t ~ pi_T; for dt = 1..T_t execute Eq. (7) with a_base recomputed at each
+        step; r_T of Eq. (8); store ((s_t, a_t), T_t, r_T, (s_t+T, a_t+T), delta) in D_T."""
+        obs, c = self.obs, self.sac_cfg
+        a = self.actor.act(obs)  # line 5
+        x = timing_input(obs, a)
+        T = self.timing_taker.act(x)  # line 6
+        rewards, terminated, truncated = [], False, False
+        for dt in range(1, T + 1):  # lines 7-10
+            b = float(beta(T, dt))
+            # Eq. (7): a_bar_{t+dt} = beta(T, dt) a_t + (1 - beta(T, dt)) a_base,t+dt
+            a_bar = blend(float(a[0]), self.env.base_action(), b)
+            obs2, r, terminated, truncated = self._env_step(a_bar, b)
+            rewards.append(r)
+            if terminated or truncated:
+                break
+        r_T = discounted_sum(rewards, c.gamma)  # line 11, Eq. (8)
+        # Eq. (9)'s target needs the actor's action at s_{t+T}: drawn from the current actor
+        x2 = timing_input(obs2, self.actor.act(obs2))
+        self.timing_buffer.add(x, T, r_T, x2, c.gamma ** T, terminated)  # line 12
+        self._learn(self.timing_taker, self.timing_buffer, self.tc.timing_learning_starts, "timing")  # 13-14
+        if not (terminated or truncated):
+            self.obs = obs2
+
+    # ---- the whole schedule ------------------------------------------------------------
+
+    def run(self):
+        tc = self.tc
+        if self.step == 0:
+            self.obs, _ = self.env.reset(seed=self.seed)
+        else:
+            self.obs, _ = self.env.reset(seed=self.seed + self.step)  # resumed: SUMO cannot be restored
+        t0, step0, next_log = time.time(), self.step, self.step + tc.log_every
+        next_ckpt = self.step + tc.checkpoint_every
+        try:
+            while self.step < tc.steps:
+                if self.step < self.sac_steps:  # Alg. 1 line 2: a regular SAC model first
+                    self.actor_step(with_timing=False)
+                    if self.step >= self.sac_steps and self.algo == "tarl":
+                        self.sac_actor = copy.deepcopy(self.actor)
+                        self.save("sac.pt", actor_only=True)
+                else:  # lines 3-25
+                    for _ in range(tc.n_timing):
+                        self.imagine()
+                    for _ in range(tc.n_actor):
+                        self.actor_step(with_timing=True)
+                if self.step >= next_log:
+                    next_log += tc.log_every
+                    self._progress(t0, step0)
+                if self.step >= next_ckpt:
+                    next_ckpt += tc.checkpoint_every
+                    self.save()
+        except KeyboardInterrupt:
+            self.log(f"\ninterrupted at step {self.step}: saving")
+            self.save()
+            raise
+        self.save()
+
+    def _progress(self, t0, step0):
+        rate = (self.step - step0) / max(time.time() - t0, 1e-9)
+        eta = (self.tc.steps - self.step) / max(rate, 1e-9)
+        recent = self.rows[-20:]
+        succ = np.mean([r[2] for r in recent]) if recent else float("nan")
+        coll = np.mean([r[3] for r in recent]) if recent else float("nan")
+        ret = np.mean([r[1] for r in recent]) if recent else float("nan")
+        phase = "SAC (Alg. 1 step 1)" if self.step <= self.sac_steps else "imagination + actor"
+        self.log(f"step {self.step:>7}/{self.tc.steps} [{phase}] {rate:5.0f} steps/s, ETA {eta / 60:5.1f} min | "
+                 f"last 20 episodes: success {succ:.2f}, collision {coll:.2f}, return {ret:6.1f} | "
+                 f"updates actor {self.updates['actor']}, timing {self.updates['timing']}")
+
+    # ---- log and checkpoints -----------------------------------------------------------
+
+    def config(self) -> dict:
+        return {"scenario": self.env.cfg.scenario, "algo": self.algo, "seed": self.seed,
+                "train": vars_of(self.tc), "sac": vars_of(self.sac_cfg), "omega": OMEGA, "t_max": T_MAX}
+
+    def save(self, name: str = "ckpt.pt", actor_only: bool = False):
+        """state_dicts and the config only: loadable with torch.load(weights_only=True)."""
+        if self.out is None:
+            return
+        self.out.mkdir(parents=True, exist_ok=True)
+        state = {"config": self.config(), "step": self.step, "actor": self.actor.state_dict()}
+        if not actor_only:
+            if self.timing_taker is not None:
+                state["timing_taker"] = self.timing_taker.state_dict()
+                state["timing_buffer"] = self.timing_buffer.state_dict()
+            if self.sac_actor is not None:
+                state["sac_actor"] = self.sac_actor.state_dict()
+            state["actor_buffer"] = self.actor_buffer.state_dict()
+            state["updates"] = dict(self.updates)
+            state["rng"] = self.rng.bit_generator.state
+            state["torch_rng"] = torch.get_rng_state()
+        tmp = self.out / (name + ".tmp")
+        torch.save(state, tmp)
+        os.replace(tmp, self.out / name)  # never a half-written checkpoint
+        if not actor_only:
+            new = not (self.out / "train_log.csv").exists()
+            with open(self.out / "train_log.csv", "a") as f:
+                if new:
+                    f.write(",".join(LOG_HEADER) + "\n")
+                f.writelines(",".join(map(str, r)) + "\n" for r in self.rows)
+            self.rows = []
+
+    def load(self, state: dict, resume: bool):
+        check_config(state, self.env.cfg.scenario, self.algo)
+        self.actor.load_state_dict(state["actor"])
+        if self.timing_taker is not None and "timing_taker" in state:
+            self.timing_taker.load_state_dict(state["timing_taker"])
+        if "sac_actor" in state:
+            self.sac_actor = copy.deepcopy(self.actor)
+            self.sac_actor.load_state_dict(state["sac_actor"])
+        if resume:
+            self.step = state["step"]
+            self.updates = state.get("updates", self.updates)
+            self.actor_buffer.load_state_dict(state["actor_buffer"])
+            if self.timing_buffer is not None:
+                self.timing_buffer.load_state_dict(state["timing_buffer"])
+            self.rng.bit_generator.state = state["rng"]
+            torch.set_rng_state(state["torch_rng"])
+
+
+LOG_HEADER = ["step", "episode_return", "success", "collision", "crossing_time", "mean_beta"]
+
+
+def vars_of(dc) -> dict:
+    return {k: getattr(dc, k) for k in dc.__dataclass_fields__}
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A checkpoint as plain tensors and dicts; a pickled object from a stranger never runs."""
+    if not Path(path).is_file():
+        raise SystemExit(f"checkpoint not found: {path}")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise SystemExit(f"cannot load checkpoint {path}: {str(e).splitlines()[0][:200]}") from None
+
+
+def check_config(state: dict, scenario: str, algo: str):
+    cfg = state.get("config") if isinstance(state, dict) else None
+    if not cfg or "actor" not in state:
+        raise SystemExit("not a tarl checkpoint: it has no config or no actor")
+    if cfg["scenario"] != scenario or cfg["algo"] != algo:
+        raise SystemExit(f"checkpoint is for --scenario {cfg['scenario']} --algo {cfg['algo']}, "
+                         f"not --scenario {scenario} --algo {algo}")
+
+
+# --------------------------------------------------------------------------------------
+# Evaluation (Table 3, Sec. 5.5)
+# --------------------------------------------------------------------------------------
 
 
 def test_seed(seed: int, round_: int) -> int:
@@ -735,42 +1351,96 @@ def test_seed(seed: int, round_: int) -> int:
 
 
 def mean_std(x) -> dict:
+    """Mean and standard deviation; None (null in JSON) for no values."""
     x = np.asarray(x, dtype=float)
-    return {"mean": float(np.mean(x)) if len(x) else float("nan"), "std": float(np.std(x)) if len(x) else float("nan")}
+    return {"mean": float(np.mean(x)), "std": float(np.std(x))} if len(x) else {"mean": None, "std": None}
 
 
-def evaluate(env: DrivingEnv, driver, rounds: int, cases: int, seed: int = 0, log=print) -> dict:
-    """Table 3's protocol: R rounds of C test cases; success rate and crossing time, mean +- std over rounds.
+def play_round(env: DrivingEnv, driver: Driver, cases: int, seed: int) -> dict:
+    """One round of Table 3: SUMO restarted with `seed`, then C test cases one after another.
 
-    Round r restarts SUMO with test_seed(seed, r), so every model meets the same traffic at the
-    start of a round. Crossing time is averaged over the successful cases of a round.
+    The agents act deterministically (the actor's mean, the timing taker's most likely T).
+    Returns per-case successes and crossing times, and for TARL the timing factors beta of
+    every step and of the last 3 s and 1 s before each collision (Sec. 5.5).
     """
-    rates, times, betas = [], [], []
-    t0 = time.time()
+    k3, k1 = round(3.0 / env.cfg.dt), round(1.0 / env.cfg.dt)
+    out = dict(success=[], crossing=[], betas=[], before3=[], before1=[])
+    obs, info = env.reset(seed=seed)
+    for case in range(cases):
+        if case:
+            obs, info = env.reset()
+        done, betas = False, []
+        while not done:
+            a, b = driver.act(obs, env, deterministic=True)
+            betas.append(b)
+            obs, _, terminated, truncated, info = env.step(a)
+            done = terminated or truncated
+        out["success"].append(bool(info["arrival"]))
+        if info["arrival"]:
+            out["crossing"].append(info["crossing_time"])
+        if betas[0] is not None:
+            out["betas"] += betas
+            if info["collision"]:
+                out["before3"] += betas[-k3:]
+                out["before1"] += betas[-k1:]
+    return out
+
+
+def summarize(scenario: str, name: str, rounds: list[dict], cases: int, seed: int) -> dict:
+    """Success rate and crossing time as mean +- std over rounds (a round's crossing time is
+    the mean over its successes; a timeout is a failure), and Sec. 5.5's mean (1 - beta)."""
+    result = {"scenario": scenario, "algo": name, "rounds": len(rounds), "cases": cases, "seed": seed,
+              "success_rate": mean_std([np.mean(r["success"]) for r in rounds]),
+              "crossing_time": mean_std([np.mean(r["crossing"]) for r in rounds if r["crossing"]])}
+    if rounds[0]["betas"]:
+        minus = lambda key: (float(np.mean(1.0 - np.concatenate([r[key] for r in rounds])))  # noqa: E731
+                             if any(r[key] for r in rounds) else None)
+        result["beta_minus"] = {"all_steps": minus("betas"), "3s_before_collision": minus("before3"),
+                                "1s_before_collision": minus("before1")}
+    return result
+
+
+def evaluate(env: DrivingEnv, driver: Driver, rounds: int, cases: int, seed: int = 0, log=print) -> dict:
+    """Table 3's protocol in this process: R rounds of C test cases, round r on test_seed(seed, r)."""
+    played, t0 = [], time.time()
     for r in range(rounds):
-        success, crossing = [], []
-        obs, info = env.reset(seed=test_seed(seed, r))
-        for case in range(cases):
-            if case:
-                obs, info = env.reset()
-            done = False
-            while not done:
-                a, beta = driver.act(obs, env, deterministic=True)
-                if beta is not None:
-                    betas.append(beta)
-                obs, _, terminated, truncated, info = env.step(a)
-                done = terminated or truncated
-            success.append(info["arrival"])
-            if info["arrival"]:
-                crossing.append(info["crossing_time"])
-        rates.append(np.mean(success))
-        times.append(np.mean(crossing) if crossing else float("nan"))
+        played.append(play_round(env, driver, cases, test_seed(seed, r)))
         eta = (time.time() - t0) / (r + 1) * (rounds - r - 1)
-        log(f"  {driver.name} round {r + 1}/{rounds}: success {rates[-1]:.3f}, crossing "
-            f"{times[-1]:.2f} s  [{time.time() - t0:.0f} s, ETA {eta:.0f} s]")
-    return {"scenario": env.cfg.scenario, "algo": driver.name, "rounds": rounds, "cases": cases,
-            "seed": seed, "success_rate": mean_std(rates),
-            "crossing_time": mean_std([t for t in times if t == t])}
+        log(f"  {driver.name} round {r + 1}/{rounds}: success {np.mean(played[-1]['success']):.3f}  "
+            f"[{time.time() - t0:.0f} s, ETA {eta:.0f} s]")
+    return summarize(env.cfg.scenario, driver.name, played, cases, seed)
+
+
+def _round_worker(job):
+    """One (model, round) in a worker process: libsumo runs one simulation per process."""
+    scenario, name, states, sac_cfg, cases, seed = job
+    torch.set_num_threads(1)
+    if not hasattr(_round_worker, "env"):
+        _round_worker.env = DrivingEnv(EnvConfig(scenario=scenario))
+    return play_round(_round_worker.env, driver_from_states(name, states, sac_cfg), cases, seed)
+
+
+def evaluate_parallel(scenario: str, drivers: list[Driver], rounds: int, cases: int, seed: int = 0,
+                      workers: int = 2, log=print) -> list[dict]:
+    """evaluate() for several models, their rounds spread over worker processes.
+
+    Every round restarts SUMO from its own test seed, so a round gives the same numbers
+    whichever process plays it: this is the sequential protocol, faster.
+    """
+    import concurrent.futures as cf
+    import multiprocessing as mp
+    jobs = [(scenario, d.name, driver_states(d), d.sac_cfg, cases, test_seed(seed, r))
+            for d in drivers for r in range(rounds)]
+    played, t0 = {}, time.time()
+    with cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = {pool.submit(_round_worker, job): (job[1], i % rounds) for i, job in enumerate(jobs)}
+        for n, future in enumerate(cf.as_completed(futures), 1):
+            name, r = futures[future]
+            played[name, r] = future.result()
+            eta = (time.time() - t0) / n * (len(jobs) - n)
+            log(f"  {name} round {r + 1}/{rounds}: success {np.mean(played[name, r]['success']):.3f}  "
+                f"[{n}/{len(jobs)} rounds, {time.time() - t0:.0f} s, ETA {eta:.0f} s]")
+    return [summarize(scenario, d.name, [played[d.name, r] for r in range(rounds)], cases, seed) for d in drivers]
 
 
 def table(results: list[dict]) -> str:
@@ -778,7 +1448,8 @@ def table(results: list[dict]) -> str:
     lines = [f"{'model':<14}{'success rate':>18}{'crossing time [s]':>22}"]
     for res in results:
         s, c = res["success_rate"], res["crossing_time"]
-        lines.append(f"{res['algo']:<14}{s['mean']:>10.3f} +- {s['std']:.3f}{c['mean']:>14.2f} +- {c['std']:.2f}")
+        crossing = f"{c['mean']:>14.2f} +- {c['std']:.2f}" if c["mean"] is not None else f"{'-':>14}"
+        lines.append(f"{res['algo']:<14}{s['mean']:>10.3f} +- {s['std']:.3f}{crossing}")
     return "\n".join(lines)
 
 
@@ -786,38 +1457,76 @@ def table(results: list[dict]) -> str:
 # Command line
 # --------------------------------------------------------------------------------------
 
-ALGOS = ("lattice-idm",)
+ALGOS = ("tarl", "sac", "sac-lattice", "lattice-idm")
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = argparse.ArgumentParser(
+        description="Train timing-aware RL (or a baseline) in SUMO, then evaluate it as Table 3 does.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--scenario", choices=sorted(SCENARIOS), default="roundabout")
-    p.add_argument("--algo", choices=ALGOS, default=ALGOS[0], help="the model to train and evaluate")
+    p.add_argument("--algo", choices=ALGOS, default="tarl",
+                   help="tarl also reports SAC (its step-1 model) and Lattice-IDM on the same test seeds")
+    p.add_argument("--steps", type=int, default=TrainConfig.steps,
+                   help="simulator steps of training; 500000 is the paper's budget")
     p.add_argument("--seed", type=int, default=0, help="seeds training and the evaluation rounds")
     p.add_argument("--eval-rounds", type=int, default=10, help="R of Table 3")
     p.add_argument("--eval-cases", type=int, default=200, help="C of Table 3: test cases per round")
-    p.add_argument("--out", type=Path, help="run directory: eval.json (and the training log, checkpoints)")
-    p.add_argument("--gui", action="store_true", help="watch in sumo-gui (uses TraCI instead of libsumo)")
+    p.add_argument("--out", type=Path, help="run directory (default runs/SCENARIO-ALGO-sSEED): "
+                   "training log, checkpoints, eval.json")
+    p.add_argument("--load", type=Path, metavar="CKPT", help="evaluate this checkpoint instead of training")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
+    p.add_argument("--gui", action="store_true", help="watch in sumo-gui (TraCI instead of libsumo); "
+                   "needs --load unless --algo lattice-idm")
     args = p.parse_args(argv)
-    if args.eval_rounds < 1 or args.eval_cases < 1:
-        p.error("--eval-rounds and --eval-cases must be at least 1")
+    if args.eval_rounds < 1 or args.eval_cases < 1 or args.steps < 1:
+        p.error("--steps, --eval-rounds and --eval-cases must be at least 1")
+    if args.load and args.resume:
+        p.error("--load evaluates a checkpoint, --resume continues training: choose one")
+    if args.gui and not args.load and args.algo != "lattice-idm":
+        p.error("--gui watches a trained agent: give it --load CKPT")
+    args.out = args.out or Path("runs") / f"{args.scenario}-{args.algo}-s{args.seed}"
     return args
 
 
 def main(argv=None):
     args = parse_args(argv)
+    torch.set_num_threads(min(2, os.cpu_count() or 1))
     env = DrivingEnv(EnvConfig(scenario=args.scenario), gui=args.gui)
+    drivers = [Driver("lattice-idm")]
     try:
-        print(f"evaluating {args.algo} on the {args.scenario}: {args.eval_rounds} rounds x {args.eval_cases} cases")
-        result = evaluate(env, LatticeIDM(), args.eval_rounds, args.eval_cases, args.seed)
+        if args.algo != "lattice-idm":
+            trainer = Trainer(env, args.algo, replace(TrainConfig(), steps=args.steps), seed=args.seed, out=args.out)
+            if args.load:
+                trainer.load(load_checkpoint(args.load), resume=False)
+            else:
+                ckpt = args.out / "ckpt.pt"
+                if args.resume:
+                    trainer.load(load_checkpoint(ckpt), resume=True)
+                    print(f"resuming {ckpt} at step {trainer.step}")
+                elif ckpt.exists():
+                    raise SystemExit(f"{args.out} already holds a run: --resume to continue it, or choose another --out")
+                print(f"training {args.algo} on the {args.scenario} for {args.steps} steps -> {args.out}")
+                try:
+                    trainer.run()
+                except KeyboardInterrupt:
+                    raise SystemExit(f"saved {ckpt} and the log; continue with --resume --out {args.out}") from None
+            drivers = [trainer.driver] + ([Driver("sac", trainer.sac_actor)] if trainer.sac_actor else []) + drivers
+        print(f"evaluating on the {args.scenario}: {args.eval_rounds} rounds x {args.eval_cases} cases, "
+              f"the same test seeds for every model")
+        if args.gui:
+            results = [evaluate(env, d, args.eval_rounds, args.eval_cases, args.seed) for d in drivers]
+        else:
+            env.close()  # the workers run their own simulations
+            results = evaluate_parallel(args.scenario, drivers, args.eval_rounds, args.eval_cases, args.seed)
     finally:
         env.close()
-    print(table([result]))
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "eval.json").write_text(json.dumps(result, indent=2))
-        print(f"wrote {args.out / 'eval.json'}")
+    print(table(results))
+    if "beta_minus" in results[0]:
+        print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "eval.json").write_text(json.dumps({**results[0], "table": results}, indent=2))
+    print(f"wrote {args.out / 'eval.json'}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,106 @@
+"""The environment on the real simulator (libsumo): the ego's dynamics, collisions, the game in SUMO."""
+import math
+
+import numpy as np
+import pytest
+
+import tarl
+from tarl import EnvConfig
+
+
+@pytest.fixture(scope="module")
+def empty_env():
+    """The intersection with no humans: the ego alone, or with vehicles a test places itself."""
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection", spawn_gap=math.inf, warmup=0.0))
+    yield env
+    env.close()
+
+
+def test_ego_realises_the_commanded_acceleration(empty_env):
+    env, dt = empty_env, empty_env.cfg.dt
+    obs, info = env.reset(seed=0, options={"route": "S_N"})
+    assert env.v == pytest.approx(8.0)  # the depart speed
+    for a in [2.0, 2.0, 1.0, 0.0, -1.0, -3.0, -3.0, 0.5, 5.0, -9.0]:
+        v, s = env.v, env.s
+        obs, r, terminated, truncated, info = env.step(a)
+        expected = min(max(a, -3.0), 2.0)  # commands beyond [-3, 2] are clipped
+        assert env.v == pytest.approx(max(0.0, v + expected * dt), abs=1e-9)
+        assert env.s - s == pytest.approx(env.v * dt, abs=1e-6)  # SUMO's Euler position update
+        assert obs[6] == pytest.approx(env.v / 16.0, abs=1e-6)
+        assert not terminated and not truncated
+
+
+def test_full_throttle_into_crossing_traffic_is_a_detected_collision(empty_env):
+    env, sim = empty_env, empty_env.sim
+    env.reset(seed=0, options={"route": "S_N"})
+    # a human crossing from the west, ignoring everyone, that stalls across the ego's lane
+    # (x = 4.8 m) just before the ego (at 8 m/s + 2 m/s^2) gets there
+    sim.vehicle.add("crosser", "W_E", typeID="human", depart="now", departLane="1", departSpeed="14")
+    sim.vehicle.setSpeedMode("crosser", 0)
+    done, steps = False, 0
+    while not done:
+        if "crosser" in sim.vehicle.getIDList():
+            stalled = sim.vehicle.getPosition("crosser")[0] > 7.0  # front bumper [m]
+            sim.vehicle.setSpeed("crosser", 0.0 if stalled else 14.0)
+        obs, r, terminated, truncated, info = env.step(2.0)
+        done, steps = terminated or truncated, steps + 1
+    assert info["collision"] and not info["arrival"] and terminated
+    assert r == -20.0 and info["cost"] == 1.0
+    assert steps < 60  # it happened in the junction, not after a timeout
+    sim.vehicle.remove("crosser")
+
+
+def test_arrival_ends_the_episode_with_the_crossing_time(empty_env):
+    env = empty_env
+    env.reset(seed=0, options={"route": "S_N"})
+    rewards, done = [], False
+    while not done:
+        obs, r, terminated, truncated, info = env.step(0.0)  # 8 m/s all the way
+        rewards.append(r)
+        done = terminated or truncated
+    assert info["arrival"] and terminated and rewards[-1] == 20.0
+    # S_N: the route's destination lies 20 m into the exit road, 93.6 m from the ego's start
+    assert info["crossing_time"] == pytest.approx(93.6 / 8.0, abs=0.25)
+    assert rewards[0] == pytest.approx((8.0 - 1.0) / 9.0 * 0.5)  # Eq. (31) at 8 m/s
+
+
+def test_observation_sees_a_vehicle_ahead(empty_env):
+    env, sim = empty_env, empty_env.sim
+    env.reset(seed=0, options={"route": "S_N"})
+    sim.vehicle.add("ahead", "S_N", typeID="human", depart="now", departLane="1", departPos="40", departSpeed="0")
+    sim.vehicle.setSpeedMode("ahead", 0)
+    sim.vehicle.setSpeed("ahead", 0.0)
+    obs, *_ = env.step(0.0)
+    obs, *_ = env.step(0.0)
+    front = obs[7:].reshape(6, 2, 5)[0, 0]
+    gap = 40.0 - env.s  # both front bumpers on the same straight lane [m]
+    assert front[0] == 1.0 and front[1] == pytest.approx(gap / 60.0, abs=1e-3)
+    assert front[3] == pytest.approx(0.5, abs=1e-3)  # dead ahead: the middle of (-30, 30]
+    assert env.base_action() < 0.0  # the planner brakes for it
+    sim.vehicle.remove("ahead")
+
+
+def test_level_k_yield_is_enforced_in_sumo():
+    """Busy traffic: every human the game tells to yield is held, and released when the game ends."""
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    try:
+        env.reset(seed=3)
+        seen = 0
+        for _ in range(600):
+            obs, r, terminated, truncated, info = env.step(env.base_action())
+            if terminated or truncated:
+                assert not env.decisions and not env.capped  # everyone handed back to SUMO
+                env.reset()
+                continue
+            for h, k in env.decisions.items():
+                seen += 1
+                ignored = env.sim.vehicle.getParameter(h, "junctionModel.ignoreIDs")
+                assert ignored == ("ego" if k == tarl.CROSS else "")
+        assert seen > 0  # games were played
+    finally:
+        env.close()
+
+
+def test_unknown_scenario_is_refused():
+    with pytest.raises(ValueError, match="unknown scenario"):
+        tarl.DrivingEnv(EnvConfig(scenario="highway"))
