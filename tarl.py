@@ -757,14 +757,15 @@ class SACConfig:
     batch_size: int = 256  # B, Table 2
     buffer_size: int = 1_000_000  # N_buffer, Table 2
     learning_starts: int = 2_000  # N_start, Table 2: env steps before the first update
-    hidden: int = 256  # D_hidden, Table 2; the paper says "simple MLP": two hidden layers, as in SAC (Haarnoja 2018)
+    hidden: int = 256  # D_hidden, Table 2; "simple MLP": two hidden layers, as in SAC (Haarnoja 2018)
     gamma: float = 0.99  # gamma, Table 2; the timing taker discounts a decision by gamma^T, Eq. (9)
     tau: float = 0.005  # tau, Table 2: Polyak weight of the target critics
     lr: float = 3e-4  # lr, Table 2: Adam, for policy, critics and temperature alike (the paper gives one lr)
-    init_alpha: float = 1.0  # not in the paper: starting temperature alpha, log alpha = 0 as in SAC (Haarnoja 2018b)
-    # Not in the paper: the discrete head's target entropy is this fraction of log(n). 0.98 log n (Christodoulou
-    # 2019) is almost uniform for n = 10 and keeps alpha growing; 0.3 log 10 = 0.69 ~ log 2, the entropy of a
-    # coin flip between two timings: the timing taker may commit, but never to a single T with certainty.
+    init_alpha: float = 1.0  # not in the paper: the starting temperature alpha; log alpha = 0 as in SAC
+    # Not in the paper: the discrete head's target entropy is this fraction of log(n). Atari's 0.98 log n
+    # (Christodoulou 2019) asks for an almost uniform pi over T, and alpha then grows until the entropy
+    # swamps the Q differences. 0.3 log 10 = 0.69 ~ log 2: the entropy of a coin flip between two timings,
+    # or of ~87% on one T and the rest spread: the timing taker may commit, but keeps exploring.
     target_entropy_fraction: float = 0.3
 
 
@@ -797,8 +798,8 @@ class TwinCritic(nn.Module):
         self.w3, self.b3 = uniform(hidden, hidden, out_dim), uniform(hidden, 1, out_dim)
 
     def forward(self, obs: torch.Tensor, act: torch.Tensor | None = None, frozen: bool = False) -> torch.Tensor:
-        w1_obs, w1_act, b1, w2, b2, w3, b3 = (p.detach() if frozen and p is not None else p for p in
-                                              (self.w1_obs, self.w1_act, self.b1, self.w2, self.b2, self.w3, self.b3))
+        params = (self.w1_obs, self.w1_act, self.b1, self.w2, self.b2, self.w3, self.b3)
+        w1_obs, w1_act, b1, w2, b2, w3, b3 = (p.detach() if frozen and p is not None else p for p in params)
         h = torch.baddbmm(b1, obs.expand(2, *obs.shape), w1_obs)
         if act is not None:
             h = h.baddbmm_(act.expand(2, *act.shape), w1_act)
@@ -826,6 +827,7 @@ class SAC:
         else:
             self.act_dim = act_dim
             low, high = (np.broadcast_to(np.asarray(v, np.float32), (act_dim,)) for v in (low, high))
+            assert (low < high).all(), "a continuous head needs per-dimension bounds low < high"
             self.action_scale = torch.as_tensor((high - low) / 2)
             self.action_bias = torch.as_tensor((high + low) / 2)
             self.log_prob_offset = -0.5 * LOG_2PI - 2 * LOG_2 - self.action_scale.log()  # (act_dim,)
@@ -889,13 +891,13 @@ class SAC:
         self.optimizer.zero_grad(set_to_none=True)
         (loss_q + loss_pi + loss_alpha).backward()
         self.optimizer.step()
-        # Table 2: soft target update Q-hat <- (1 - tau) Q-hat + tau Q. The text below Eq. (12) says theta_a
-        # "is copied after several iterations"; Table 2's tau is SAC's Polyak averaging, used for both agents.
         with torch.no_grad():
+            # Table 2: Q-hat <- (1 - tau) Q-hat + tau Q. The text before Eq. (13) says theta_a "is copied after
+            # several iterations"; Table 2's tau is SAC's Polyak averaging, used here for both agents.
             torch._foreach_lerp_(self._target, self._online, self.cfg.tau)
-        with torch.no_grad():  # one conversion to Python floats instead of six .item() calls
             logs = torch.stack([loss_q, loss_pi, loss_alpha, self.log_alpha.exp(), entropy.mean(), q.mean()])
-        return dict(zip(("critic_loss", "policy_loss", "temperature_loss", "alpha", "entropy", "q"), logs.tolist()))
+        names = ("critic_loss", "policy_loss", "temperature_loss", "alpha", "entropy", "q")
+        return dict(zip(names, logs.tolist()))
 
     def state_dict(self) -> dict:
         """Plain tensors and dicts only: loadable with torch.load(weights_only=True)."""
@@ -946,6 +948,7 @@ def critic_loss(agent: SAC, batch: dict[str, torch.Tensor]) -> tuple[torch.Tenso
         q_taken = q.gather(-1, (batch["act"] - 1).view(1, -1, 1).expand(2, -1, 1)).squeeze(-1)
     else:
         q = q_taken = agent.critic(batch["obs"], batch["act"]).squeeze(-1)
+    # Eq. (9), Eq. (13) (note 2: minimised, not maximised): sum_i E[(Q_i(s, a) - y)^2]
     return (q_taken - y).square().mean(-1).sum(), q
 
 
@@ -993,9 +996,12 @@ class ReplayBuffer:
 
     def __init__(self, capacity: int, obs_dim: int, act_shape: tuple = (1,), act_dtype=np.float32):
         self.capacity, self.ptr, self.size = capacity, 0, 0
-        self.data = {"obs": np.zeros((capacity, obs_dim), np.float32), "act": np.zeros((capacity, *act_shape), act_dtype),
-                     "rew": np.zeros(capacity, np.float32), "next_obs": np.zeros((capacity, obs_dim), np.float32),
-                     "discount": np.zeros(capacity, np.float32), "done": np.zeros(capacity, np.float32)}
+        self.data = {"obs": np.zeros((capacity, obs_dim), np.float32),
+                     "act": np.zeros((capacity, *act_shape), act_dtype),
+                     "rew": np.zeros(capacity, np.float32),
+                     "next_obs": np.zeros((capacity, obs_dim), np.float32),
+                     "discount": np.zeros(capacity, np.float32),
+                     "done": np.zeros(capacity, np.float32)}
 
     def __len__(self) -> int:
         return self.size
@@ -1011,7 +1017,8 @@ class ReplayBuffer:
 
     def state_dict(self) -> dict:
         """The filled part only, as tensors (torch.save / torch.load(weights_only=True))."""
-        return {"ptr": self.ptr, **{key: torch.from_numpy(array[: self.size].copy()) for key, array in self.data.items()}}
+        filled = {key: torch.from_numpy(array[: self.size].copy()) for key, array in self.data.items()}
+        return {"ptr": self.ptr, **filled}
 
     def load_state_dict(self, state: dict) -> None:
         self.size, self.ptr = len(state["obs"]), state["ptr"]
