@@ -12,14 +12,23 @@ call scores a fixed lattice of end states (t_e, l_e, v_e) all at once with numpy
 three-state FSM pick a trajectory, and caps its next acceleration by IDM toward the
 leader on the path. The environment calls base_action() at every simulation step.
 
+delta_traj needs the other vehicles' future. The paper predicts them "at a constant speed";
+here each also keeps its yaw rate (constant speed and turn rate, CTRV: a circular arc, the
+straight line when the yaw rate is 0), so that a vehicle on a roundabout ring or in a turn
+stays in its lane (predict). Each arc is cut into a few chords; each chord, like a straight
+line, is on a path segment for a time window found in closed form (path_occupancy).
+
 Map from the paper to this file:
     Eq. (18) l(t) = c1 t^5 + ... + c6        -> _Lattice.powers, _Lattice.trajectories
     Eq. (19) the six boundary conditions     -> quintic_coefficients
     Eq. (20) cost = K1 phi_coll + ... + K5   -> base_action
     Eq. (21) the five terms; delta_traj      -> _Lattice (phi_v, phi_t), base_action;
-             from constant-speed predictions    path_occupancy
+             from constant-speed predictions    predict, arc_chords, path_occupancy, on_path
     FSM: drive / slow down to stop / brake   -> base_action
     Eq. (22) a_t1, Eq. (23) min(a_t1, a_IDM) -> base_action, idm_acceleration
+
+Units: metres, seconds, radians; angles counter-clockwise from +x; points in the plane as
+complex numbers x + iy.
 
 Test: `python -m pytest -q test_planner.py`.
 """
@@ -67,6 +76,21 @@ class PlannerConfig:
     K3: float = 0.1  # [1/s]
     K4: float = 1.0  # [1/m], multiplies phi_d = 0 on a fixed path
     K5: float = 0.1  # [s^2/m]
+    # Prediction of the others (Eq. (21)'s delta_traj): constant speed AND constant yaw rate
+    # (CTRV), see predict(). The paper says only "constant speed".
+    # A passenger car turns no tighter than about 5 m (turning radius 5-6 m), so |yaw rate| is
+    # clamped to v / 5 m. A larger measured value is noise: the yaw rate is a heading change
+    # over one step, SUMO's heading turns where a lane's polyline bends, and at low speed a
+    # small heading change is a large one per metre travelled (a crawling car would spin).
+    min_turn_radius: float = 5.0  # [m]
+    # An arc is followed by chords, each a straight piece with its own closed-form window. A
+    # chord turns by at most chord_angle, so its heading is within chord_angle / 2 of the arc's,
+    # and lies at most chord_sagitta inside the arc; a lane 3.2 m away leaves 0.7 m to the band
+    # below. A ring vehicle (v = 10 m/s, R = 25 m) gets 11 chords over the 8 s horizon. With
+    # 0.3 rad and 0.3 m a vehicle circling next to the ego's ring lane, inside or outside it,
+    # does not block the ego; with 0.4 rad and 0.5 m it does on a path of 4 m segments.
+    chord_angle: float = 0.3  # [rad]
+    chord_sagitta: float = 0.3  # [m]
     # Collision check: margins added to the two vehicles' half extents. Laterally a parallel
     # vehicle in the next lane (3.2 m away, Table 1) stays outside the band W + 0.5 = 2.5 m.
     lateral_margin: float = 0.5  # [m]
@@ -179,6 +203,9 @@ class PathSegments(NamedTuple):
     #                         segment's frame: real part along the path, imaginary part to the left.
     length: np.ndarray  # (S,) [m]
     s_start: np.ndarray  # (S,) [m] arc length at the first point
+    middle: np.ndarray  # (S,) complex [m] middle point
+    miter_start: np.ndarray  # (S,) [-] tan(alpha / 2), alpha the path's bend at the first point
+    miter_end: np.ndarray  # (S,) [-] the same at the last point
 
 
 def path_segments(path_s: np.ndarray, path_xy: np.ndarray) -> PathSegments:
@@ -189,7 +216,16 @@ def path_segments(path_s: np.ndarray, path_xy: np.ndarray) -> PathSegments:
     first, last = (z[1] - z[0]) / abs(z[1] - z[0]), (z[-1] - z[-2]) / abs(z[-1] - z[-2])
     z = np.concatenate(([z[0] - first * _EXTENSION], z, [z[-1] + last * _EXTENSION]))
     s = np.concatenate(([s[0] - _EXTENSION], s, [s[-1] + _EXTENSION]))
-    return PathSegments(z[:-1], np.conj(np.diff(z) / np.diff(s)), np.diff(s), s[:-1])
+    to_segment = np.conj(np.diff(z) / np.diff(s))
+    # The bend alpha at each inner point. A segment's band that reaches band tan(alpha / 2) past
+    # its end meets the next segment's band on the bisector: the outer side of the bend is
+    # covered, and nothing reaches beyond it. (A full band width past every end would overshoot
+    # the outer side: beside a curved path, a vehicle in the next lane out would be in the band.)
+    # Capped at a right angle: no lane shape bends more at one point.
+    bend = np.abs(np.angle(to_segment[1:] / to_segment[:-1]))  # (S - 1,) [rad]
+    miter = np.tan(np.minimum(bend, np.pi / 2) / 2)
+    return PathSegments(z[:-1], to_segment, np.diff(s), s[:-1], (z[:-1] + z[1:]) / 2,
+                        np.append(0.0, miter), np.append(miter, 0.0))
 
 
 @lru_cache(maxsize=64)
@@ -198,14 +234,108 @@ def _cached_path_segments(s_bytes: bytes, xy_bytes: bytes) -> PathSegments:
     return path_segments(np.frombuffer(s_bytes), np.frombuffer(xy_bytes).reshape(-1, 2))
 
 
-class Occupancy(NamedTuple):
-    """When and where vehicle j's prediction is on segment i of the ego path; each (M, S)."""
+def as_others(others: ArrayLike) -> np.ndarray:
+    """The others as an (M, 5) float array: x [m], y [m], speed [m/s], heading [rad], yaw rate
+    [rad/s]. An (M, 4) array (no yaw rate) means yaw rate 0, the straight-line prediction."""
+    others = np.asarray(others, dtype=float)
+    if others.size == 0:
+        return np.zeros((0, 5))
+    others = others.reshape(-1, others.shape[-1])
+    if others.shape[1] == 4:
+        others = np.column_stack([others, np.zeros(len(others))])
+    assert others.shape[1] == 5, "others: (M, 5) x, y, speed, heading, yaw rate, or (M, 4)"
+    return others
 
-    t_in: np.ndarray  # [s] start of the time window (empty if t_in > t_out)
+
+class Prediction(NamedTuple):
+    """The others' predicted motion as P straight pieces, each at a constant velocity over a
+    time interval: first the vehicles that do not turn, one piece each, then the chords of the
+    turning ones, vehicle by vehicle in time order."""
+
+    vehicle: np.ndarray  # (P,) int: the vehicle's row in `others`
+    origin: np.ndarray  # (P,) complex [m]: where the piece's line passes at t = 0 (x + iy)
+    speed: np.ndarray  # (P,) [m/s]
+    direction: np.ndarray  # (P,) complex: exp(i heading), of the motion and of the vehicle's box
+    t_from: np.ndarray  # (P,) [s]: the piece holds for t_from <= t <= t_to
+    t_to: np.ndarray  # (P,) [s]
+
+
+def predict(others: ArrayLike, cfg: PlannerConfig) -> Prediction:
+    """Each vehicle at constant speed and constant turn rate (CTRV), as straight pieces.
+
+    Paper (Sec. 4): "the planner assumes the surrounding vehicles move at a constant speed"; it
+    does not say along what. A straight line at the current heading is the plainest reading, but
+    in a turn or on a roundabout ring the tangent leaves the lane: a ring vehicle's tangent cuts
+    across the entry lanes, and an inner-ring vehicle's tangent drifts (v t)^2 / 2R = 1.3 m into
+    the outer lane in 1 s (R = 25 m, v = 8 m/s), so the ego would yield to vehicles that never
+    come. This prediction keeps the paper's assumption, a constant speed, and adds a constant
+    yaw rate omega: the vehicle moves on the circle of radius v / |omega| through its position,
+    tangent to its heading (counter-clockwise for omega > 0). With omega = 0 that is the straight
+    line at the current heading, the paper's plain reading.
+
+    A vehicle with omega = 0 is ONE piece, unbounded in time: exactly the straight-line
+    prediction. A turning vehicle's arc is cut into chords (arc_chords).
+    """
+    x, y, v, psi, omega = as_others(others).T
+    # No car turns tighter than min_turn_radius: a larger measured yaw rate is noise.
+    omega = np.clip(omega, -v / cfg.min_turn_radius, v / cfg.min_turn_radius)  # [rad/s]
+    z0 = x + 1j * y  # [m]
+    straight = np.flatnonzero(omega == 0.0)
+    unbounded = np.full(len(straight), np.inf)
+    pieces = Prediction(straight, z0[straight], v[straight], np.exp(1j * psi[straight]),
+                        -unbounded, unbounded)
+    if omega.any():
+        turning = np.flatnonzero(omega)
+        chords = arc_chords(z0[turning], v[turning], psi[turning], omega[turning], cfg)
+        chords = chords._replace(vehicle=turning[chords.vehicle])  # rows of `others`
+        pieces = Prediction(*(np.concatenate(both) for both in zip(pieces, chords)))
+    return pieces
+
+
+def arc_chords(z0: np.ndarray, v: np.ndarray, psi: np.ndarray, omega: np.ndarray,
+               cfg: PlannerConfig) -> Prediction:
+    """The arcs of turning vehicles over [0, horizon], each cut into chords of equal duration.
+
+    z0 (M,) complex [m] position x + iy, v (M,) [m/s], psi (M,) [rad] heading, omega (M,) [rad/s]
+    turn rate, nonzero. A vehicle moves on the circle of signed radius r = v / omega through z0,
+    tangent to its heading (counter-clockwise for omega > 0): after turning by an angle a it is
+    at the end of the chord z0 + 2 r sin(a / 2) exp(i (psi + a / 2)), and heads psi + a. Each arc
+    is cut into n chords, n the smallest count for which each chord turns by at most
+    cfg.chord_angle and lies at most cfg.chord_sagitta inside the arc. A chord joins two points
+    of the arc, so the prediction is exact at the chords' ends. `vehicle` of the result indexes
+    these M vehicles.
+    """
+    # Over a chord of duration dt the heading turns by |omega| dt, and the chord lies up to
+    # |r| (1 - cos(omega dt / 2)) < v |omega| dt^2 / 8 inside the arc.
+    n = np.ceil(np.maximum(np.abs(omega) * cfg.horizon / cfg.chord_angle,
+                           cfg.horizon * np.sqrt(v * np.abs(omega) / (8 * cfg.chord_sagitta)))).astype(int)
+    step = cfg.horizon / n  # (M,) [s] duration of a chord
+    turn = omega * step  # (M,) [rad] heading change over a chord
+    r = v / omega  # (M,) [m] signed radius
+    # A chord over the turn `turn` is 2 r sin(turn / 2) long (signed) and heads half-way round.
+    chord_velocity = 2 * r * np.sin(turn / 2) / step * np.exp(0.5j * turn)  # (M,) [m/s] times exp(i psi_k)
+    vehicle = np.repeat(np.arange(len(n)), n)  # (P,)
+    index = np.arange(len(vehicle)) - np.repeat(np.cumsum(n) - n, n)  # chord 0, 1, ... of its vehicle
+    t_from = index * step[vehicle]  # (P,) [s]
+    turned = turn[vehicle] * index  # (P,) [rad] heading change before the chord
+    first = z0[vehicle] + 2 * r[vehicle] * np.sin(turned / 2) * np.exp(1j * (psi[vehicle] + turned / 2))
+    velocity = chord_velocity[vehicle] * np.exp(1j * (psi[vehicle] + turned))  # (P,) [m/s]
+    speed = np.abs(velocity)
+    return Prediction(vehicle, first - velocity * t_from, speed, velocity / speed,
+                      t_from, t_from + step[vehicle])
+
+
+class Occupancy(NamedTuple):
+    """The Q windows in which a piece of the prediction is on a segment of the ego path, (Q,)
+    each, ordered by piece, then segment."""
+
+    piece: np.ndarray  # (Q,) int: the piece (entry of the Prediction)
+    segment: np.ndarray  # (Q,) int: the segment of the path
+    t_in: np.ndarray  # [s] start of the time window
     t_out: np.ndarray  # [s] end of the time window
-    s_start: np.ndarray  # [m] its arc length on the path at t = 0, measured on segment i
-    s_rate: np.ndarray  # [m/s] its speed along segment i: s(t) = s_start + s_rate t
-    half_along: np.ndarray  # [m] half its extent along segment i
+    s_start: np.ndarray  # [m] the vehicle's arc length on the path at t = 0, measured on the segment
+    s_rate: np.ndarray  # [m/s] its speed along the segment: s(t) = s_start + s_rate t
+    half_along: np.ndarray  # [m] half its extent along the segment
 
 
 def _window(x0: np.ndarray, rate: np.ndarray, low: ArrayLike, high: ArrayLike):
@@ -215,27 +345,86 @@ def _window(x0: np.ndarray, rate: np.ndarray, low: ArrayLike, high: ArrayLike):
     return np.minimum(t_low, t_high), np.maximum(t_low, t_high)
 
 
-def path_occupancy(others: np.ndarray, path: PathSegments, cfg: PlannerConfig) -> Occupancy:
-    """The others' predictions against the ego path. Paper: each vehicle keeps its current
-    speed and heading, so its prediction is a straight line.
+def path_occupancy(prediction: Prediction, path: PathSegments, cfg: PlannerConfig) -> Occupancy:
+    """The windows, overlapping [0, horizon], in which a predicted piece is on a path segment.
 
-    In a segment's frame, a straight-line motion is linear in time along and across, so the
-    time window in which a vehicle is inside the segment's band follows in closed form, with
-    no sampled points to project. The band's half width is the two vehicles' half extents
-    across the path (each an L x W box at its heading) plus a margin; along the path the band
-    reaches that far past each segment end, which covers the outer side of a bend.
+    In a segment's frame, a straight piece is linear in time along and across, so the time
+    window in which the vehicle is inside the segment's band follows in closed form, with no
+    sampled points to project; it is then cut to the piece's own time interval. The band's half
+    width is the two vehicles' half extents across the path (each an L x W box at its heading)
+    plus a margin; along the path the band reaches past each segment end far enough to cover
+    the outer side of a bend (PathSegments.miter_start, miter_end).
     """
     L, W = cfg.length, cfg.width
-    heading = np.exp(1j * others[:, 3:4]) * path.to_segment  # (M, S): cos + i sin of the relative heading
-    position = (others[:, 0:1] + 1j * others[:, 1:2] - path.start) * path.to_segment  # (M, S) [m]
-    velocity = others[:, 2:3] * heading  # (M, S) [m/s]
+    pred, horizon = prediction, cfg.horizon
+    # A cheap test first, on every (piece, segment) pair: within [0, horizon] a piece stays
+    # within half its length of its middle point, and the segment's band (whatever the heading)
+    # within `radius` of the segment's middle point. Only the pairs closer than the sum get the
+    # closed form.
+    band_max = W / 2 + 0.5 * math.hypot(L, W) + cfg.lateral_margin  # [m]
+    radius = np.hypot(path.length / 2 + band_max, band_max)  # (S,) [m]
+    t_from, t_to = np.maximum(pred.t_from, 0.0), np.minimum(pred.t_to, horizon)  # (P,) [s]
+    middle = pred.origin + pred.speed * pred.direction * ((t_from + t_to) / 2)  # (P,) [m]
+    reach = radius + (pred.speed * (t_to - t_from) / 2)[:, None]  # (P, S) [m]
+    dx = middle.real[:, None] - path.middle.real  # (P, S) [m]
+    dy = middle.imag[:, None] - path.middle.imag
+    near = dx * dx + dy * dy < reach * reach
+    piece, segment = np.divmod(np.flatnonzero(near), len(path.length))  # (Q',) each
+
+    to_segment = path.to_segment[segment]
+    heading = pred.direction[piece] * to_segment  # cos + i sin of the heading relative to the segment
+    position = (pred.origin[piece] - path.start[segment]) * to_segment  # [m] at t = 0
+    velocity = pred.speed[piece] * heading  # [m/s]
     cos_rel, sin_rel = np.abs(heading.real), np.abs(heading.imag)
     half_along = 0.5 * (L * cos_rel + W * sin_rel)
     band = W / 2 + 0.5 * (L * sin_rel + W * cos_rel) + cfg.lateral_margin  # [m]
     t_in_across, t_out_across = _window(position.imag, velocity.imag, -band, band)
-    t_in_along, t_out_along = _window(position.real, velocity.real, -band, path.length + band)
-    return Occupancy(np.maximum(t_in_across, t_in_along), np.minimum(t_out_across, t_out_along),
-                     path.s_start + position.real, velocity.real, half_along)
+    t_in_along, t_out_along = _window(position.real, velocity.real, -band * path.miter_start[segment],
+                                      path.length[segment] + band * path.miter_end[segment])
+    t_in = np.maximum(np.maximum(t_in_across, t_in_along), pred.t_from[piece])
+    t_out = np.minimum(np.minimum(t_out_across, t_out_along), pred.t_to[piece])
+    kept = (t_in <= t_out) & (t_in <= horizon) & (t_out >= 0.0)
+    return Occupancy(piece[kept], segment[kept], t_in[kept], t_out[kept],
+                     (path.s_start[segment] + position.real)[kept], velocity.real[kept], half_along[kept])
+
+
+class OnPath(NamedTuple):
+    """The others' predictions on the ego path, one entry per (vehicle, grid time) at which the
+    vehicle is on the path; (P,) each."""
+
+    vehicle: np.ndarray  # (P,) int: its row in `others`
+    k: np.ndarray  # (P,) int: the grid time t_k = k dt
+    s: np.ndarray  # (P,) [m] arc length of its centre on the path
+    s_rate: np.ndarray  # (P,) [m/s] its speed along the path
+    half_along: np.ndarray  # (P,) [m] half its extent along the path
+
+
+def on_path(others: np.ndarray, path: PathSegments, times: np.ndarray, cfg: PlannerConfig) -> OnPath:
+    """Where the predictions of `others` (M, 5) are on the path at the grid times (K,) [s]."""
+    nobody = OnPath(np.zeros(0, dtype=int), np.zeros(0, dtype=int), np.zeros(0), np.zeros(0), np.zeros(0))
+    if not len(others):
+        return nobody
+    prediction = predict(others, cfg)
+    occ = path_occupancy(prediction, path, cfg)  # Q windows
+    if not len(occ.piece):
+        return nobody
+    # One arc length per (vehicle, grid time): that of the vehicle's first window that holds the
+    # time (a turning vehicle's chords share their end times; two segments share a time where
+    # the path bends, with arc lengths less than a band width apart). The (window, time) pairs,
+    # sorted stably by (vehicle, time), keep the first of each run of equal keys.
+    k_first = np.searchsorted(times, occ.t_in)  # (Q,) the first grid time >= t_in
+    count = np.maximum(np.searchsorted(times, occ.t_out, side="right") - k_first, 0)  # grid times in it
+    window = np.repeat(np.arange(len(count)), count)  # (window, grid time) pairs, in window order
+    # within each window k runs k_first, k_first + 1, ...
+    k = np.arange(len(window)) + np.repeat(k_first - np.cumsum(count) + count, count)
+    vehicle = prediction.vehicle[occ.piece[window]]
+    key = vehicle * len(times) + k
+    order = np.argsort(key, kind="stable")
+    key, window, k, vehicle = key[order], window[order], k[order], vehicle[order]
+    first = np.concatenate(([True], key[1:] != key[:-1]))[:len(key)]
+    window, k = window[first], k[first]
+    return OnPath(vehicle[first], k, occ.s_start[window] + occ.s_rate[window] * times[k],
+                  occ.s_rate[window], occ.half_along[window])
 
 
 def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np.ndarray,
@@ -244,50 +433,45 @@ def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np
 
     s0 [m], v0 [m/s], a0 [m/s^2]: arc length of the ego's CENTRE on its path, its speed and its
     realised acceleration. path_s (N,) [m]: cumulative Euclidean length along path_xy (N, 2) [m],
-    path_s[0] = 0. others (M, 4), M >= 0, the ego excluded: centre x [m], y [m], speed [m/s],
-    heading [rad, counter-clockwise from +x].
+    path_s[0] = 0. others (M, 5), M >= 0, the ego excluded: centre x [m], y [m], speed [m/s],
+    heading [rad, counter-clockwise from +x], yaw rate [rad/s, counter-clockwise positive]; an
+    (M, 4) array without the yaw rate means yaw rate 0 (straight-line predictions).
     """
     lat = lattice(cfg)
     L = cfg.length
     a0 = min(max(a0, cfg.a_min), cfg.a_max)  # round-off in a0 must not make every candidate infeasible
 
-    # Eqs. (18)-(19): every candidate from (v0, a0) at once (see _Lattice); positions past s0
-    trajectories = lat.fixed + v0 * lat.per_v0 + a0 * lat.per_a0  # (4, K, C)
-    pos, acc, jerk = trajectories[0], trajectories[2], trajectories[3]  # (K, C) each
+    # Eqs. (18)-(19): every candidate from (v0, a0) at once (see _Lattice); here the speed,
+    # acceleration and jerk, the positions below where they are needed.
+    trajectories = lat.fixed[1:] + v0 * lat.per_v0[1:] + a0 * lat.per_a0[1:]  # (3, K, C)
+    acc, jerk = trajectories[1], trajectories[2]  # (K, C) each
     # Kinematic feasibility: 0 <= v <= v_max (no reversing) and a_min <= a <= a_max throughout.
-    speed_acc = trajectories[1:3]  # (2, K, C)
+    speed_acc = trajectories[:2]  # (2, K, C)
     feasible = ((speed_acc.min(axis=1) >= lat.lower) & (speed_acc.max(axis=1) <= lat.upper)).all(axis=0)
 
-    # The others' constant-speed predictions against the path; only vehicles whose prediction
-    # meets the path within the horizon matter.
-    others = np.asarray(others, dtype=float).reshape(-1, 4)
+    # The others' predictions (constant speed and turn rate, see predict) on the path.
     path_s, path_xy = np.asarray(path_s, dtype=float), np.asarray(path_xy, dtype=float)
-    occ = path_occupancy(others, _cached_path_segments(path_s.tobytes(), path_xy.tobytes()), cfg)
-    meets = ((occ.t_in <= occ.t_out) & (occ.t_in <= cfg.horizon) & (occ.t_out >= 0.0)).any(axis=1)
-    occ = Occupancy(*(field[meets] for field in occ))
-    # One arc length per (vehicle, grid time): that of the first segment whose window holds the
-    # time. Two segments share a time where the path bends (their s differ by < a band width).
-    inside = (occ.t_in[..., None] <= lat.times) & (lat.times <= occ.t_out[..., None])  # (M, S, K)
-    on_path, seg = inside.any(axis=1), inside.argmax(axis=1)  # (M, K) each
-    vehicle = np.arange(len(seg))[:, None]
-    s_other = occ.s_start[vehicle, seg] + occ.s_rate[vehicle, seg] * lat.times  # (M, K) [m]
-    half_along = occ.half_along[vehicle, seg]  # (M, K) [m]
+    others = as_others(others)
+    seen = on_path(others, _cached_path_segments(path_s.tobytes(), path_xy.tobytes()), lat.times, cfg)
+    now = seen.k == 0
     # A vehicle on the path behind the ego now is a follower: no plan of the ego can avoid
     # it (SUMO's car following brakes it), so it blocks no candidate.
-    follower = on_path[:, 0] & (s_other[:, 0] < s0)  # (M,)
-    blocking = on_path & ~follower[:, None]  # (M, K)
+    follower = np.zeros(len(others), dtype=bool)
+    follower[seen.vehicle[now & (seen.s < s0)]] = True
+    blocking = ~follower[seen.vehicle]  # (P,)
 
     # delta_traj: a candidate collides if at some grid time it is closer along the path to a
     # blocking vehicle than their two half lengths plus the margin. Only the (vehicle, time)
     # pairs with a vehicle on the path, and only feasible candidates (no other is ever chosen),
     # are compared.
-    j, k = np.nonzero(blocking)  # (P,) each
-    checked = np.flatnonzero(feasible)  # (C',)
-    apart = pos[:, checked][k] - (s_other[j, k] - s0)[:, None]  # (P, C') [m]
-    close = np.abs(apart) < (L / 2 + half_along[j, k] + cfg.longitudinal_margin)[:, None]
-    # Eq. (21): phi_coll = delta_traj
     phi_coll = np.zeros(len(lat.te))
-    phi_coll[checked] = close.any(axis=0)
+    if blocking.any():
+        checked = np.flatnonzero(feasible)  # (C',)
+        pos = lat.fixed[0] + v0 * lat.per_v0[0] + a0 * lat.per_a0[0]  # (K, C) [m] past s0
+        apart = pos[:, checked][seen.k[blocking]] - (seen.s[blocking] - s0)[:, None]  # (P', C') [m]
+        close = np.abs(apart) < (L / 2 + seen.half_along[blocking] + cfg.longitudinal_margin)[:, None]
+        # Eq. (21): phi_coll = delta_traj
+        phi_coll[checked] = close.any(axis=0)
     # Eq. (21): phi_d = |d_e - d0| + |d_e - d_ref| = 0, since the ego stays on its lane centre
     phi_d = 0.0
     # Eq. (21): phi_jerk = sum_t (|l'''(t)| + |d'''(t)|), a Riemann sum over the grid (d''' = 0)
@@ -309,12 +493,12 @@ def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np
             break
 
     # IDM toward the leader: the nearest vehicle on the path ahead of the ego now.
-    ahead = on_path[:, 0] & (s_other[:, 0] > s0)
+    ahead = np.flatnonzero(now & (seen.s > s0))
     gap, dv = np.inf, 0.0  # free road
-    if ahead.any():
-        gaps = np.where(ahead, s_other[:, 0] - s0 - L / 2 - half_along[:, 0], np.inf)  # bumper to bumper
-        leader = np.argmin(gaps)
-        gap, dv = gaps[leader], v0 - occ.s_rate[leader, seg[leader, 0]]
+    if len(ahead):
+        gaps = seen.s[ahead] - s0 - L / 2 - seen.half_along[ahead]  # bumper to bumper
+        leader = ahead[np.argmin(gaps)]
+        gap, dv = gaps.min(), v0 - seen.s_rate[leader]
     a_idm = idm_acceleration(v0, cfg.v_target, gap, dv, cfg.a_max, cfg.idm_comfort_decel,
                              cfg.idm_min_gap, cfg.idm_time_headway, cfg.idm_delta)
     # Eq. (23): a_base = min(a_t1, a_IDM), within the ego's limits

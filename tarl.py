@@ -502,8 +502,13 @@ class DrivingEnv:
                 xy = np.concatenate(shapes)
                 xy = xy[np.r_[True, np.any(np.abs(np.diff(xy, axis=0)) > 1e-6, axis=1)]]  # joints once
                 path_s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-                exit_start = sum(float(np.sum(np.hypot(*np.diff(sh, axis=0).T))) for sh in shapes[:-1])
-                tasks.append(dict(route=rid, lane=idx, first=lanes[0], edges=edges, xy=xy, s=path_s,
+                drawn = [float(np.sum(np.hypot(*np.diff(sh, axis=0).T))) for sh in shapes]
+                starts = np.concatenate([[0.0], np.cumsum(drawn)[:-1]])
+                # SUMO's lane lengths differ from the drawn shapes (by ~10 % on the ring): a lane
+                # position is scaled to the drawn length, so s is measured along path_xy
+                lane_s = {lane: (start, d / sim.lane.getLength(lane)) for lane, start, d in zip(lanes, starts, drawn)}
+                exit_start = starts[-1]
+                tasks.append(dict(route=rid, lane=idx, first=lanes[0], edges=edges, xy=xy, s=path_s, lane_s=lane_s,
                                   dest=exit_start + self.cfg.destination,
                                   task=self._task_index(edges, lanes)))
         if not tasks:
@@ -572,13 +577,12 @@ class DrivingEnv:
         else:
             raise RuntimeError("no free lane to spawn the ego for 60 s: the traffic is jammed")
         V = sim.constants if hasattr(sim, "constants") else sim.tc
-        sim.vehicle.subscribe(EGO, [V.VAR_POSITION, V.VAR_ANGLE, V.VAR_SPEED, V.VAR_DISTANCE, V.VAR_ROAD_ID])
+        sim.vehicle.subscribe(EGO, [V.VAR_POSITION, V.VAR_ANGLE, V.VAR_SPEED, V.VAR_LANE_ID, V.VAR_LANEPOSITION])
         sim.vehicle.subscribeContext(EGO, V.CMD_GET_VEHICLE_VARIABLE, c.perception,
                                      [V.VAR_POSITION, V.VAR_SPEED, V.VAR_ANGLE])
         self.V = V
         self.ego_alive = True
         self.t_spawn = sim.simulation.getTime()
-        self.s0 = sim.vehicle.getLanePosition(EGO) - sim.vehicle.getDistance(EGO)  # odometer offset [m]
         self.accel = 0.0
         self.waited = 0.0
         self._headings = {}
@@ -618,7 +622,7 @@ class DrivingEnv:
         if self._a_base is None:
             L = self.cfg.length
             self._a_base = planner.base_action(self.s - L / 2, self.v, self.accel, self.task["s"],
-                                               self.task["xy"], self.others[:, :4], self.planner_cfg)[0]
+                                               self.task["xy"], self.others, self.planner_cfg)[0]
         return self._a_base
 
     def _info(self, collided, arrived, timeout):
@@ -631,6 +635,9 @@ class DrivingEnv:
         for h in list(self.decisions):
             self._release(h)
         if EGO in self.sim.vehicle.getIDList():
+            # unsubscribe first: a subscription outliving its vehicle can fail the next step
+            self.sim.vehicle.unsubscribe(EGO)
+            self.sim.vehicle.unsubscribeContext(EGO, self.V.CMD_GET_VEHICLE_VARIABLE, self.cfg.perception)
             self.sim.vehicle.remove(EGO)
         self.ego_alive = False
 
@@ -655,8 +662,9 @@ class DrivingEnv:
         self.heading = math.radians(90.0 - ego[V.VAR_ANGLE])  # SUMO: degrees clockwise from north
         front = np.array(ego[V.VAR_POSITION])
         self.xy = front - 0.5 * L * np.array([math.cos(self.heading), math.sin(self.heading)])
-        self.s = self.s0 + ego[V.VAR_DISTANCE]  # front bumper's arc length along the path [m]
-        road = ego[V.VAR_ROAD_ID]
+        start, scale = self.task["lane_s"][ego[V.VAR_LANE_ID]]
+        self.s = start + scale * ego[V.VAR_LANEPOSITION]  # front bumper's arc length along the path [m]
+        road = ego[V.VAR_LANE_ID].rsplit("_", 1)[0]
         zone = 0 if road == self.task["edges"][0] else 2 if road == self.task["edges"][-1] else 1
         ctx = sim.vehicle.getContextSubscriptionResults(EGO)
         ids = [k for k in ctx if k != EGO]
@@ -1035,7 +1043,7 @@ class ReplayBuffer:
 class TrainConfig:
     """Algorithm 1's schedule. None of these is in the paper; each says why its value."""
 
-    steps: int = 60_000  # simulator steps in all (both loops of Alg. 1 count). The default
+    steps: int = 100_000  # simulator steps in all (both loops of Alg. 1 count). The default
     #                      budget runs in about 20 minutes here; --steps 500000 is N_train of Table 2.
     sac_fraction: float = 0.4  # Alg. 1 line 2: plain SAC trains for this share of the steps; that
     #                            model is Table 3's SAC row. The rest alternates the two loops.
@@ -1483,6 +1491,8 @@ def parse_args(argv=None):
                    "training log, checkpoints, eval.json")
     p.add_argument("--load", type=Path, metavar="CKPT", help="evaluate this checkpoint instead of training")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
+    p.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1),
+                   help="torch threads for training; 1 when another busy process shares the cores")
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (TraCI instead of libsumo); "
                    "needs --load unless --algo lattice-idm")
     args = p.parse_args(argv)
@@ -1498,7 +1508,7 @@ def parse_args(argv=None):
 
 def main(argv=None):
     args = parse_args(argv)
-    torch.set_num_threads(min(2, os.cpu_count() or 1))
+    torch.set_num_threads(args.threads)
     env = DrivingEnv(EnvConfig(scenario=args.scenario), gui=args.gui)
     drivers = [Driver("lattice-idm")]
     try:

@@ -1,4 +1,5 @@
-"""Tests of planner.py: the quintic of Eqs. (18)-(19), IDM, and the base planner's behaviour."""
+"""Tests of planner.py: the quintic of Eqs. (18)-(19), IDM, the predictions at constant speed
+and yaw rate, and the base planner's behaviour."""
 import numpy as np
 import pytest
 
@@ -94,13 +95,14 @@ def test_perpendicular_crosser_occupies_the_path_in_a_closed_form_window():
     # 10 m/s northward, 40 m south of the path at x = 40: its 5 x 2 m box is within the band
     # |y| < 1 + 2.5 + 0.5 = 4 m from t = 3.6 s to 4.4 s, at s = 40 m, with 1 m of it along the path.
     crosser = np.array([[40.0, -40.0, 10.0, np.pi / 2]])
-    occ = planner.path_occupancy(crosser, planner.path_segments(STRAIGHT_S, STRAIGHT_XY), CFG)
-    on = np.flatnonzero(occ.t_in[0] <= occ.t_out[0])
-    assert len(on) == 1
-    np.testing.assert_allclose([occ.t_in[0, on[0]], occ.t_out[0, on[0]]], [3.6, 4.4])
-    assert occ.s_start[0, on[0]] == pytest.approx(40.0)
-    assert occ.s_rate[0, on[0]] == pytest.approx(0.0, abs=1e-9)
-    assert occ.half_along[0, on[0]] == pytest.approx(1.0)
+    path = planner.path_segments(STRAIGHT_S, STRAIGHT_XY)
+    occ = planner.path_occupancy(planner.predict(crosser, CFG), path, CFG)
+    assert len(occ.t_in) == 1  # one window: on the path's one segment (between the extensions)
+    assert occ.piece[0] == 0 and path.s_start[occ.segment[0]] == pytest.approx(0.0)
+    np.testing.assert_allclose([occ.t_in[0], occ.t_out[0]], [3.6, 4.4])
+    assert occ.s_start[0] == pytest.approx(40.0)
+    assert occ.s_rate[0] == pytest.approx(0.0, abs=1e-9)
+    assert occ.half_along[0] == pytest.approx(1.0)
 
 
 # ---- the base planner ---------------------------------------------------------------------
@@ -174,3 +176,126 @@ def test_follows_a_slower_leader_on_a_bend_at_a_safe_gap():
     gaps = [30.0 + 4.0 * t - s - CFG.length for t, s, v, a, mode in run]
     assert min(gaps) > 3.0
     assert abs(run[-1][2] - 4.0) < 1.0  # settled near the leader's speed
+
+
+# ---- predictions at constant speed and yaw rate (CTRV) ---------------------------------------
+
+def ring_path(radius, segment=3.0, start=-np.pi / 2, turn=1.5 * np.pi):
+    """A counter-clockwise circle of `radius` [m] around the origin from angle `start` [rad] over
+    `turn` [rad], as a polyline of about `segment` [m] chords (as SUMO's ring lanes): (s, xy)."""
+    angle = start + np.linspace(0.0, turn, int(radius * turn / segment) + 1)
+    xy = np.c_[radius * np.cos(angle), radius * np.sin(angle)]
+    return np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))], xy
+
+
+def on_ring(radius, angle, v, yaw_rate):
+    """One vehicle on the circle of `radius` around the origin at `angle`, heading counter-clockwise."""
+    return np.array([[radius * np.cos(angle), radius * np.sin(angle), v, angle + np.pi / 2, yaw_rate]])
+
+
+def positions(prediction, vehicle, t):
+    """The predicted centre (x + iy) of `vehicle` at times t, from its pieces."""
+    mine = np.flatnonzero(prediction.vehicle == vehicle)
+    holds = (prediction.t_from[mine] <= t[:, None]) & (t[:, None] <= prediction.t_to[mine])
+    piece = mine[np.argmax(holds, axis=1)]
+    return prediction.origin[piece] + prediction.speed[piece] * prediction.direction[piece] * t
+
+
+def test_zero_yaw_rate_is_the_straight_line_and_four_columns_mean_zero_yaw_rate():
+    cars = np.array([[40.0, -40.0, 10.0, np.pi / 2], [30.0, 0.0, 0.0, 0.0], [5.0, 3.2, 12.0, 0.1]])
+    for others in (cars, np.c_[cars, np.zeros(3)]):
+        prediction = planner.predict(others, CFG)
+        np.testing.assert_array_equal(prediction.vehicle, [0, 1, 2])  # one piece each, for all time
+        np.testing.assert_array_equal(prediction.origin, cars[:, 0] + 1j * cars[:, 1])
+        np.testing.assert_array_equal(prediction.speed, cars[:, 2])
+        np.testing.assert_array_equal(prediction.direction, np.exp(1j * cars[:, 3]))
+        assert np.all(prediction.t_from == -np.inf) and np.all(prediction.t_to == np.inf)
+    assert (base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, cars, CFG)
+            == base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, np.c_[cars, np.zeros(3)], CFG))
+
+
+def test_a_tiny_yaw_rate_predicts_the_straight_line():
+    # Round-off in a measured heading gives yaw rates like 1e-15 rad/s: a radius of 1e16 m.
+    # (Not 40 m south at 10 m/s like the crossers above: there a candidate is exactly at
+    # the collision distance, and a 1e-13 m difference decides.)
+    crosser = np.array([[37.0, -37.5, 10.0, np.pi / 2, 1e-15]])
+    prediction = planner.predict(crosser, CFG)
+    t = np.linspace(0.0, CFG.horizon, 9)
+    np.testing.assert_allclose(positions(prediction, 0, t), 37.0 - 37.5j + 10.0j * t, atol=1e-9)
+    a_straight, _ = base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, crosser[:, :4], CFG)
+    assert a_straight < base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)[0] - 0.5
+    assert base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, crosser, CFG)[0] == pytest.approx(a_straight)
+
+
+@pytest.mark.parametrize("yaw_sign", [1.0, -1.0])
+def test_chords_follow_the_circle_by_hand(yaw_sign):
+    # 10 m/s at (25, 0) heading north, yaw rate +-0.4 rad/s: the circle of radius 25 m around the
+    # origin (counter-clockwise) or around (50, 0) (clockwise). Its 3.2 rad over 8 s take
+    # ceil(3.2 / 0.3) = 11 chords; each chord's ends are on the circle, its middle at most
+    # chord_sagitta inside.
+    R, v = 25.0, 10.0
+    prediction = planner.predict(np.array([[R, 0.0, v, np.pi / 2, yaw_sign * v / R]]), CFG)
+    assert len(prediction.vehicle) == 11
+    np.testing.assert_allclose(prediction.t_from[0], 0.0)
+    np.testing.assert_allclose(prediction.t_to[-1], CFG.horizon)
+    centre = 0.0 if yaw_sign > 0 else 2 * R
+    start = 0.0 if yaw_sign > 0 else np.pi  # the vehicle's angle seen from the centre at t = 0
+    t = np.linspace(0.0, CFG.horizon, 801)
+    by_hand = centre + R * np.exp(1j * (start + yaw_sign * v / R * t))
+    ends = np.r_[prediction.t_from, prediction.t_to[-1]]
+    np.testing.assert_allclose(positions(prediction, 0, ends),
+                               centre + R * np.exp(1j * (start + yaw_sign * v / R * ends)), atol=1e-9)
+    distance = np.abs(positions(prediction, 0, t) - centre)
+    assert distance.max() < R + 1e-9 and distance.min() > R - CFG.chord_sagitta
+    assert np.abs(positions(prediction, 0, t) - by_hand).max() < 2 * CFG.chord_sagitta
+
+
+def test_yaw_rate_is_clamped_to_the_minimum_turn_radius():
+    # 5 m/s with a measured 10 rad/s (a 0.5 m circle) is clamped to 1 rad/s: a 5 m circle.
+    prediction = planner.predict(np.array([[0.0, 0.0, 5.0, 0.0, 10.0]]), CFG)
+    t = np.linspace(0.0, CFG.horizon, 81)
+    distance = np.abs(positions(prediction, 0, t) - 5.0j)  # centre 5 m to the left
+    assert distance.max() < CFG.min_turn_radius + 1e-9
+    assert distance.min() > CFG.min_turn_radius - CFG.chord_sagitta
+
+
+@pytest.mark.parametrize("phase", [-0.2, 0.0, 0.2])
+def test_ring_vehicle_beside_the_ego_lane_does_not_block_but_its_tangent_does(phase):
+    # The ego drives the circle 3.2 m outside a vehicle circling at radius 25 m (the next lane),
+    # `phase` rad ahead of it. Predicted on its circle, the vehicle stays in its lane; predicted
+    # along its tangent, it drifts into the ego's lane and the ego brakes for nothing.
+    path = ring_path(25.0 + 3.2)
+    s0, v = 20.0, 8.0
+    angle = -np.pi / 2 + s0 / (25.0 + 3.2) + phase
+    empty = base_action(s0, v, 0.0, *path, NOBODY, CFG)
+    assert base_action(s0, v, 0.0, *path, on_ring(25.0, angle, v, v / 25.0), CFG) == empty
+    a_tangent, _ = base_action(s0, v, 0.0, *path, on_ring(25.0, angle, v, 0.0), CFG)
+    assert a_tangent < empty[0] - 0.5
+
+
+@pytest.mark.parametrize("phase", [-0.2, 0.0, 0.2, 0.4])
+def test_ring_vehicle_in_the_next_lane_out_does_not_block(phase):
+    # The ego drives the inner circle, the vehicle circles 3.2 m outside it. A segment's band
+    # reaching a full band width past each end of the polyline (rather than closing the bend's
+    # outer side only) would put the vehicle in the band: the second half shows it.
+    path = ring_path(25.0)
+    s0, v = 20.0, 8.0
+    vehicle = on_ring(25.0 + 3.2, -np.pi / 2 + s0 / 25.0 + phase, v, v / (25.0 + 3.2))
+    assert base_action(s0, v, 0.0, *path, vehicle, CFG) == base_action(s0, v, 0.0, *path, NOBODY, CFG)
+    segments = planner.path_segments(*path)
+    prediction = planner.predict(vehicle, CFG)
+    assert len(planner.path_occupancy(prediction, segments, CFG).piece) == 0
+    full_band = segments._replace(miter_start=np.ones_like(segments.miter_start),
+                                  miter_end=np.ones_like(segments.miter_end))
+    assert len(planner.path_occupancy(prediction, full_band, CFG).piece) > 0
+
+
+def test_vehicle_turning_onto_the_path_blocks_the_ego_but_its_tangent_would_not():
+    # 8 m/s eastward 12 m beside the ego's road, turning left at 8 / 12 rad/s: a quarter of the
+    # circle around (20, 0) takes it across the road at (32, 0) after 2.36 s, when the ego
+    # (8 m from the origin at 10 m/s) gets there. Straight on, it would stay 12 m away.
+    empty, _ = base_action(8.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
+    turner = np.array([[20.0, -12.0, 8.0, 0.0, 8.0 / 12.0]])
+    a_turning, _ = base_action(8.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, turner, CFG)
+    assert a_turning < empty - 0.5
+    assert base_action(8.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, turner[:, :4], CFG)[0] == pytest.approx(empty)
