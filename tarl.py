@@ -2,22 +2,29 @@
 
 Reference implementation of Li, Wu, He, "Act Better by Timing: A timing-Aware
 Reinforcement Learning for Autonomous Driving". An ego vehicle crosses an
-unsignalized intersection or a roundabout among human drivers (IDM car
-following plus a level-k game with the ego). The base action comes from
-`planner.py` (quintic lattice + state machine + IDM).
+unsignalized intersection or a roundabout among human drivers (IDM car following
+plus a level-k game with the ego). The actor (SAC) picks an acceleration; the timing
+taker (discrete SAC) picks when it should be executed, learning in a timing
+imagination; the timing factor beta(T) blends the actor's action with the base action
+of `planner.py` (quintic lattice + state machine + IDM).
 
+    python tarl.py --scenario roundabout                 # train TARL, then Table 3
     python tarl.py --scenario intersection --algo lattice-idm --eval-rounds 2 --eval-cases 20
 
 Equations are cited by the number printed in the paper's PDF
 (../shared/paper/EQUATIONS.md maps them to the LaTeX labels).
 
 Map from the paper to this file
-    Sec. 3, Eqs. (1)-(2)        DrivingEnv.step: one SUMO step; SUMO + level-k drivers are xi_t
-    Table 1                     SCENARIOS, DrivingEnv._spawn_human
-    Eqs. (24)-(26) level-k game game_utility, level_k_decisions, DrivingEnv._play_level_k
-    Eqs. (27)-(30) observation  sector_index, observe
-    Eq. (31) reward             reward
-    Sec. 5.3, Table 3           evaluate, main
+    Sec. 3, Eqs. (1)-(2)          DrivingEnv.step: one SUMO step; SUMO + level-k drivers are xi_t
+    Table 1                       SCENARIOS, HUMAN_RANGES, DrivingEnv._spawn_humans
+    Eqs. (24)-(26) level-k game   game_utility, outcome_terms, level_k_decisions, DrivingEnv._play_level_k
+    Eqs. (27)-(30) observation    sector_index, observe
+    Eq. (31) reward               reward
+    Eqs. (6), (11) timing factor  beta;  Eqs. (7), (12) the blends: blend
+    Eq. (5) timing-taker input    timing_input;  Eq. (8) r_T: discounted_sum
+    Eqs. (9), (13) critics        td_target, critic_loss;  Eqs. (10), (14) policies: policy_loss
+    Table 2                       SACConfig;  Algorithm 1: TrainConfig, Trainer (imagine, actor_step, run)
+    Sec. 5.3, Table 3, Sec. 5.5   Driver, play_round, evaluate, evaluate_parallel, main
 """
 from __future__ import annotations
 
@@ -26,9 +33,8 @@ import copy
 import json
 import math
 import os
-import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np

@@ -1,7 +1,6 @@
 """The environment on the real simulator (libsumo): the ego's dynamics, collisions, the game in SUMO."""
 import math
 
-import numpy as np
 import pytest
 
 import tarl

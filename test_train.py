@@ -1,5 +1,4 @@
 """Algorithm 1 on the real simulator: short runs that really learn, checkpoints, determinism."""
-import math
 
 import numpy as np
 import pytest
