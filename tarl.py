@@ -33,6 +33,7 @@ import copy
 import json
 import math
 import os
+import subprocess
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -426,15 +427,21 @@ class DrivingEnv:
                 "--max-depart-delay", "30"]
         if self.gui:
             args += ["--start", "--quit-on-end", "--delay", "50"]
-        try:
-            if DrivingEnv._owner.get(self.gui) is not None:  # one simulation per process: take it over
-                DrivingEnv._owner[self.gui].running = False
-                self.sim.load(args)
-            else:
-                self.sim.start([binary] + args)
-        except Exception as e:  # libsumo raises its own exception types; one line is enough
-            raise SystemExit(f"SUMO cannot load {self.net_file.name}: {str(e).strip() or type(e).__name__}. "
-                             "Rebuild the networks with `python scenarios/build.py`.") from None
+        if not getattr(self, "checked", False):
+            # libsumo takes the whole process down on a broken network: try it in a subprocess first
+            check = subprocess.run([str(sumo_home() / "bin" / "sumo")] + args[:4] + ["--end", "0"],
+                                   capture_output=True, text=True)
+            if check.returncode != 0:
+                error = next((line for line in (check.stderr + check.stdout).splitlines() if "rror" in line),
+                             f"SUMO crashed reading it (exit code {check.returncode}), is it valid XML?")
+                raise SystemExit(f"SUMO cannot load {self.net_file.name}: {error.strip()} "
+                                 "Rebuild the networks with `python scenarios/build.py`.")
+            self.checked = True
+        if DrivingEnv._owner.get(self.gui) is not None:  # one simulation per process: take it over
+            DrivingEnv._owner[self.gui].running = False
+            self.sim.load(args)
+        else:
+            self.sim.start([binary] + args)
         self.running = True
         DrivingEnv._owner[self.gui] = self
         self.ego_alive = False
@@ -1274,7 +1281,7 @@ class Trainer:
 
     def _progress(self, t0, step0):
         rate = (self.step - step0) / max(time.time() - t0, 1e-9)
-        eta = (self.tc.steps - self.step) / max(rate, 1e-9)
+        eta = max(0, self.tc.steps - self.step) / max(rate, 1e-9)
         recent = self.rows[-20:]
         succ = np.mean([r[2] for r in recent]) if recent else float("nan")
         coll = np.mean([r[3] for r in recent]) if recent else float("nan")

@@ -103,3 +103,22 @@ def test_level_k_yield_is_enforced_in_sumo():
 def test_unknown_scenario_is_refused():
     with pytest.raises(ValueError, match="unknown scenario"):
         tarl.DrivingEnv(EnvConfig(scenario="highway"))
+
+
+def test_a_broken_network_is_one_line_not_a_traceback(tmp_path):
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env.net_file = tmp_path / "broken.net.xml"
+    env.net_file.write_text("<net><edge id=")
+    with pytest.raises(SystemExit, match="SUMO cannot load broken.net.xml: .*scenarios/build.py"):
+        env.reset(seed=0)
+    ok = tarl.DrivingEnv(EnvConfig(scenario="intersection", spawn_gap=math.inf, warmup=0.0))
+    ok.reset(seed=0)  # the next simulation starts normally
+    ok.close()
+
+
+@pytest.mark.parametrize("argv", [["--scenario", "highway"], ["--algo", "ppo"], ["--eval-rounds", "0"],
+                                  ["--gui", "--algo", "tarl"]])
+def test_bad_command_lines_get_argparse_errors(argv):
+    with pytest.raises(SystemExit) as e:
+        tarl.parse_args(argv)
+    assert e.value.code == 2
