@@ -33,6 +33,7 @@ import copy
 import json
 import math
 import os
+import signal
 import subprocess
 import time
 from dataclasses import dataclass, replace
@@ -1522,6 +1523,7 @@ def parse_args(argv=None):
 def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # a kill saves like Ctrl-C
     env = DrivingEnv(EnvConfig(scenario=args.scenario), gui=args.gui)
     drivers = [Driver("lattice-idm")]
     try:
