@@ -1287,7 +1287,8 @@ class Trainer:
         succ = np.mean([r[2] for r in recent]) if recent else float("nan")
         coll = np.mean([r[3] for r in recent]) if recent else float("nan")
         ret = np.mean([r[1] for r in recent]) if recent else float("nan")
-        phase = "SAC (Alg. 1 step 1)" if self.step <= self.sac_steps else "imagination + actor"
+        phase = self.algo if self.algo != "tarl" else \
+            "SAC (Alg. 1 step 1)" if self.step <= self.sac_steps else "imagination + actor"
         self.log(f"step {self.step:>7}/{self.tc.steps} [{phase}] {rate:5.0f} steps/s, ETA {eta / 60:5.1f} min | "
                  f"last 20 episodes: success {succ:.2f}, collision {coll:.2f}, return {ret:6.1f} | "
                  f"updates actor {self.updates['actor']}, timing {self.updates['timing']}")
