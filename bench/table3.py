@@ -49,16 +49,14 @@ def markdown(found: dict) -> str:
         for scenario in SCENARIOS:
             r = found.get((scenario, row))
             cells += [fmt(r["success_rate"]["mean"], r["success_rate"]["std"], 3), fmt(r["crossing_time"]["mean"], r["crossing_time"]["std"], 2)] if r else ["not run", ""]
-        lines.append(f"| {row} (this code) | " + " | ".join(cells) + " |")
+        budget = sorted({f"{r['rounds']} x {r['cases']}" for (s, name), r in found.items() if name == row})
+        lines.append(f"| {row} (this code, {', '.join(budget) or '-'}) | " + " | ".join(cells) + " |")
         if any((s, row) in PAPER for s in SCENARIOS):
             paper = []
             for scenario in SCENARIOS:
                 p = PAPER.get((scenario, row))
                 paper += [f"{p[0]:.3f} +- {p[1]:.3f}", f"{p[2]:.2f} +- {p[3]:.2f}"] if p else ["", ""]
             lines.append(f"| {row} (paper) | " + " | ".join(paper) + " |")
-    budgets = sorted({(s, r["cases"], r["rounds"]) for (s, _), r in found.items()})
-    lines.append("")
-    lines.append("Rounds x cases: " + ", ".join(f"{s} {r} x {c}" for s, c, r in budgets))
     return "\n".join(lines)
 
 
