@@ -29,6 +29,7 @@ Map from the paper to this file
 from __future__ import annotations
 
 import argparse
+import collections
 import copy
 import json
 import math
@@ -1165,8 +1166,8 @@ class Trainer:
         self.updates = {"actor": 0, "timing": 0}
         self.sac_actor = None  # the step-1 model (Table 3's SAC row), kept when step 1 ends
         self.episode = dict(ret=0.0, betas=[])
-        self.rows: list[list] = []
-        self.last = {}
+        self.rows: list[list] = []  # log rows not yet written to train_log.csv
+        self.recent = collections.deque(maxlen=20)  # the last episodes, for the progress line
 
     @property
     def sac_steps(self) -> int:
@@ -1189,7 +1190,7 @@ class Trainer:
         row = [self.step, round(self.episode["ret"], 3), int(info["arrival"]), int(info["collision"]),
                round(info["crossing_time"], 2) if info["arrival"] else "", round(float(np.mean(b)), 4) if b else ""]
         self.rows.append(row)
-        self.last = dict(zip(LOG_HEADER, row))
+        self.recent.append(row)
         self.episode = dict(ret=0.0, betas=[])
         self.obs, _ = self.env.reset()
 
@@ -1283,7 +1284,7 @@ class Trainer:
     def _progress(self, t0, step0):
         rate = (self.step - step0) / max(time.time() - t0, 1e-9)
         eta = max(0, self.tc.steps - self.step) / max(rate, 1e-9)
-        recent = self.rows[-20:]
+        recent = self.recent
         succ = np.mean([r[2] for r in recent]) if recent else float("nan")
         coll = np.mean([r[3] for r in recent]) if recent else float("nan")
         ret = np.mean([r[1] for r in recent]) if recent else float("nan")
