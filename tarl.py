@@ -412,7 +412,6 @@ class DrivingEnv:
         self.rng = np.random.default_rng()
         self.running = False
         self.ego_alive = False
-        self.episodes = 0
 
     # ---- simulation lifecycle ----------------------------------------------------------
 
@@ -602,7 +601,6 @@ class DrivingEnv:
         self.waited = 0.0
         self._headings = {}
         self._read()
-        self.episodes += 1
         return self.obs, self._info(False, False, False)
 
     def step(self, action):
@@ -693,7 +691,6 @@ class DrivingEnv:
             self.others = np.column_stack([centre, raw[:, 2], heading, yaw_rate])
         else:
             self.others = np.zeros((0, 5))
-        self.other_ids = ids
         self._a_base = None
         self.obs = observe(self.xy, self.heading, self.v, self.task["task"], zone, self.others, self.cfg)
 
