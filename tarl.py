@@ -277,30 +277,20 @@ def level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, waited_e, alpha_h, s
              vehicle keeping its speed, i.e. it crosses);
     level 1: the ego, as the human pictures it (weights EGO_GAME_WEIGHTS), best-responds to that;
     level 2: the human best-responds to the level-1 ego with U_svo of Eq. (26).
-    Returns (M,) of CROSS / YIELD. A human that cannot stop before the conflict point
-    (decel_h > 1, i.e. beyond its own braking) has no choice: it crosses.
+    Returns (M,) of CROSS / YIELD; a tie goes to CROSS. A human that cannot stop before the
+    conflict point (decel_h > 1, i.e. beyond its own braking) has no choice: it crosses.
     """
-    alpha_h = np.asarray(alpha_h, dtype=float)
-
-    def u(t_me, t_other, dec, waited, alpha, me, other):
-        return game_utility(alpha, *outcome_terms(t_me, t_other, dec, waited, me, other, cfg), cfg)
-
-    cross, yld = np.full(len(t_h), CROSS), np.full(len(t_h), YIELD)
-    # level 0: the ego is assumed to go on (CROSS)
-    h0 = np.where(u(t_h, t_e, decel_h, waited_h, alpha_h, yld, cross)
-                  > u(t_h, t_e, decel_h, waited_h, alpha_h, cross, cross), YIELD, CROSS)
-    # level 1: the ego's best response to h0
-    e1 = np.where(u(t_e, t_h, decel_e, waited_e, EGO_GAME_WEIGHTS, yld, h0)
-                  > u(t_e, t_h, decel_e, waited_e, EGO_GAME_WEIGHTS, cross, h0), YIELD, CROSS)
-
-    # Eq. (26): U_svo = (1 - a_svo) U_self + a_svo U_oppo
-    def u_svo(me):
-        u_self = u(t_h, t_e, decel_h, waited_h, alpha_h, me, e1)
-        u_oppo = u(t_e, t_h, decel_e, waited_e, EGO_GAME_WEIGHTS, e1, me)
-        return (1.0 - svo) * u_self + svo * u_oppo
-
-    h2 = np.where(u_svo(yld) > u_svo(cross), YIELD, CROSS)
-    return np.where(decel_h > 1.0, CROSS, h2)
+    m = np.arange(len(t_h))
+    me, other = np.array([CROSS, YIELD]).reshape(2, 1, 1), np.array([CROSS, YIELD]).reshape(1, 2, 1)
+    # Eq. (24) for every pair of choices at once, the payoff tables (2 mine, 2 theirs, M):
+    # U_h[i, j] is the human's utility when it plays i and the ego j; U_e[i, j] the ego's when it plays i
+    U_h = game_utility(alpha_h, *outcome_terms(t_h, t_e, decel_h, waited_h, me, other, cfg), cfg)
+    U_e = game_utility(EGO_GAME_WEIGHTS, *outcome_terms(t_e, t_h, decel_e, waited_e, me, other, cfg), cfg)
+    h0 = U_h[:, CROSS].argmax(0)  # level 0: the best reply to an ego that goes on (CROSS)
+    e1 = U_e[:, h0, m].argmax(0)  # level 1: the ego's best reply to h0
+    # level 2, Eq. (26): U_svo = (1 - a_svo) U_self + a_svo U_oppo, against e1
+    U_svo = (1.0 - svo) * U_h[:, e1, m] + svo * U_e[e1, :, m].T
+    return np.where(decel_h > 1.0, CROSS, U_svo.argmax(0))
 
 
 # Timing (Sec. 4). Neither w nor T_max is in the paper. By Eq. (11), beta(1) = 1 and
@@ -673,8 +663,8 @@ class DrivingEnv:
         ego = sim.vehicle.getSubscriptionResults(EGO)
         self.v = ego[V.VAR_SPEED]
         self.heading = math.radians(90.0 - ego[V.VAR_ANGLE])  # SUMO: degrees clockwise from north
-        front = np.array(ego[V.VAR_POSITION])
-        self.xy = front - 0.5 * L * np.array([math.cos(self.heading), math.sin(self.heading)])
+        x, y = ego[V.VAR_POSITION]  # the front bumper
+        self.xy = np.array([x - 0.5 * L * math.cos(self.heading), y - 0.5 * L * math.sin(self.heading)])
         start, scale = self.task["lane_s"][ego[V.VAR_LANE_ID]]
         self.s = start + scale * ego[V.VAR_LANEPOSITION]  # front bumper's arc length along the path [m]
         road = ego[V.VAR_LANE_ID].rsplit("_", 1)[0]
@@ -682,13 +672,15 @@ class DrivingEnv:
         ctx = sim.vehicle.getContextSubscriptionResults(EGO)
         ids = [k for k in ctx if k != EGO]
         if ids:
-            raw = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE]) for k in ids])
-            heading = np.radians(90.0 - raw[:, 3])
-            centre = raw[:, :2] - 0.5 * L * np.stack([np.cos(heading), np.sin(heading)], 1)
-            before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading)])
-            yaw_rate = wrap_angle(heading - before) / self.cfg.dt  # [rad/s] over the last step
-            self._headings = dict(zip(ids, heading))
-            self.others = np.column_stack([centre, raw[:, 2], heading, yaw_rate])
+            # columns: x, y (front bumper -> centre), speed, SUMO angle -> heading, yaw rate
+            others = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE], 0.0) for k in ids])
+            heading = others[:, 3] = np.radians(90.0 - others[:, 3])
+            others[:, 0] -= 0.5 * L * np.cos(heading)
+            others[:, 1] -= 0.5 * L * np.sin(heading)
+            before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading.tolist())])
+            others[:, 4] = wrap_angle(heading - before) / self.cfg.dt  # [rad/s] over the last step
+            self._headings = dict(zip(ids, heading.tolist()))
+            self.others = others
         else:
             self.others = np.zeros((0, 5))
         self._a_base = None
@@ -699,8 +691,8 @@ class DrivingEnv:
         if EGO in self.sim.simulation.getCollidingVehiclesIDList():
             return True
         near = np.hypot(*(self.others[:, :2] - self.xy).T) < math.hypot(c.length, c.width)
-        return bool(np.any(boxes_overlap(self.xy, self.heading, self.others[near, :2],
-                                         self.others[near, 3], c.length, c.width)))
+        return bool(near.any()) and bool(np.any(boxes_overlap(self.xy, self.heading, self.others[near, :2],
+                                                              self.others[near, 3], c.length, c.width)))
 
     # ---- the level-k drivers: Eqs. (24)-(26) enforced in SUMO -------------------------
 
