@@ -113,6 +113,35 @@ def test_level_k_is_vectorised():
     np.testing.assert_array_equal(d, [YIELD, CROSS, CROSS])
 
 
+
+def test_level_k_payoff_tables_equal_one_utility_per_choice():
+    """level_k_decisions evaluates Eq. (24) for all four choice pairs at once; here it is one pair at a
+    time, level by level as Sec. 5.1 reads, on random games (a third of them exact arrival ties)."""
+    rng = np.random.default_rng(0)
+    ego_w = tarl.EGO_GAME_WEIGHTS
+
+    def u(t_me, t_other, dec, waited, alpha, me, other):
+        return tarl.game_utility(alpha, *tarl.outcome_terms(t_me, t_other, dec, waited, me, other, CFG), CFG)
+
+    for trial in range(300):
+        M = int(rng.integers(1, 9))
+        t_h, t_e = rng.uniform(0.0, 12.0, M), rng.uniform(0.0, 12.0, M)
+        if trial % 3 == 0:
+            t_e = t_h.copy()
+        dec_h, dec_e = rng.uniform(0.0, 1.5, M), rng.uniform(0.0, 1.5, M)
+        w_h, w_e = rng.choice([0.0, 5.0, 40.0], M), float(rng.choice([0.0, 35.0]))
+        alpha, svo = rng.uniform([0.5, 0.05, 0.05, 0.05], [0.8, 0.2, 0.2, 0.2], (M, 4)), rng.uniform(0.0, 0.5, M)
+        c, y = np.full(M, CROSS), np.full(M, YIELD)
+        h0 = np.where(u(t_h, t_e, dec_h, w_h, alpha, y, c) > u(t_h, t_e, dec_h, w_h, alpha, c, c), YIELD, CROSS)
+        e1 = np.where(u(t_e, t_h, dec_e, w_e, ego_w, y, h0) > u(t_e, t_h, dec_e, w_e, ego_w, c, h0), YIELD, CROSS)
+
+        def u_svo(me):
+            return (1 - svo) * u(t_h, t_e, dec_h, w_h, alpha, me, e1) + svo * u(t_e, t_h, dec_e, w_e, ego_w, e1, me)
+
+        expected = np.where(dec_h > 1.0, CROSS, np.where(u_svo(y) > u_svo(c), YIELD, CROSS))
+        np.testing.assert_array_equal(tarl.level_k_decisions(t_h, t_e, dec_h, dec_e, w_h, w_e, alpha, svo, CFG),
+                                      expected)
+
 def test_arrival_time_by_hand():
     # 20 m from 0 m/s at 2 m/s^2 below the cap: sqrt(2 x 20 / 2) = 4.47 s; from 10 m/s at the cap: 2 s
     np.testing.assert_allclose(tarl.arrival_time(np.array([20.0, 20.0]), np.array([0.0, 10.0]), 2.0, 10.0),
