@@ -129,7 +129,7 @@ def idm_acceleration(v: ArrayLike, v_desired: ArrayLike, gap: ArrayLike, dv: Arr
     a_max and b [m/s^2] maximum and comfortable deceleration, s0 [m] jam distance,
     time_headway [s].
     """
-    desired_gap = s0 + np.maximum(0.0, v * time_headway + v * dv / (2 * np.sqrt(a_max * b)))
+    desired_gap = s0 + np.maximum(0.0, v * time_headway + v * dv / (2 * math.sqrt(a_max * b)))
     # A gap held at 1 cm or more keeps the braking finite for touching vehicles.
     return a_max * (1 - (v / v_desired) ** delta - (desired_gap / np.maximum(gap, 0.01)) ** 2)
 
@@ -147,8 +147,8 @@ class _Lattice:
                  for fv in cfg.drive_speed_fractions for f in cfg.drive_distance_factors]
         stop = [(te, 0.0, f) for te in cfg.end_times for f in cfg.stop_distance_factors]
         self.te, self.ve, self.f = np.array(drive + stop).T  # (C,) each: t_e [s], v_e [m/s], f [-]
-        self.drive_ids = np.arange(len(drive))
-        self.stop_ids = np.arange(len(drive), len(drive) + len(stop))
+        self.drive_ids = slice(0, len(drive))  # the candidates of the drive set
+        self.stop_ids = slice(len(drive), len(drive) + len(stop))  # and of the stop set
         self.times = np.arange(round(cfg.horizon / cfg.dt) + 1) * cfg.dt  # (K,) [s]; times[1] = t1
         # Eq. (18) and its derivatives on the grid: l^(n)(t_k) = powers[n, k] @ (c1, ..., c6).
         exponents = np.arange(5, -1, -1)  # c1 multiplies t^5, ..., c6 t^0
@@ -162,9 +162,11 @@ class _Lattice:
         # Eq. (19) is linear in (l0, v_l0, a_l0, l_e, v_le, a_le), and l_e = f (v0 + v_e) / 2 t_e
         # is linear in v0, so each candidate is a fixed trajectory plus v0 and a0 times a unit
         # response: three full solves here instead of one per planning step.
-        self.fixed = self.trajectories(0.0, 0.0)
-        self.per_v0 = self.trajectories(1.0, 0.0) - self.fixed
-        self.per_a0 = self.trajectories(0.0, 1.0) - self.fixed
+        fixed = self.trajectories(0.0, 0.0)
+        # (3, 4, K, C): the trajectories from (v0, a0) are (1, v0, a0) @ responses, one pass
+        self.responses = np.stack([fixed, self.trajectories(1.0, 0.0) - fixed,
+                                   self.trajectories(0.0, 1.0) - fixed])
+        self.fixed, self.per_v0, self.per_a0 = self.responses  # (4, K, C) each
         # Feasibility bounds of (speed, acceleration): no reversing, v_max, [a_min, a_max].
         self.lower = np.array([[-_SLACK], [cfg.a_min - _SLACK]])  # [m/s], [m/s^2]
         self.upper = np.array([[cfg.v_max], [cfg.a_max + _SLACK]])  # [m/s], [m/s^2]
@@ -174,6 +176,10 @@ class _Lattice:
         self.phi_v = np.abs(self.ve - v_hat)
         # Eq. (21): phi_t = t_e
         self.phi_t = self.te
+        # Eq. (21): phi_d = |d_e - d0| + |d_e - d_ref| = 0, since the ego stays on its lane centre
+        self.phi_d = 0.0
+        # The terms of Eq. (20) that depend on the candidate only: K2 phi_v + K3 phi_t + K4 phi_d
+        self.cost_fixed = cfg.K2 * self.phi_v + cfg.K3 * self.phi_t + cfg.K4 * self.phi_d
 
     def trajectories(self, v0: float, a0: float) -> np.ndarray:
         """(4, K, C): l - l0 and its first three derivatives for every candidate, from (v0, a0)."""
@@ -249,10 +255,10 @@ def as_others(others: ArrayLike) -> np.ndarray:
 
 class Prediction(NamedTuple):
     """The others' predicted motion as P straight pieces, each at a constant velocity over a
-    time interval: first the vehicles that do not turn, one piece each, then the chords of the
-    turning ones, vehicle by vehicle in time order."""
+    time interval: vehicle by vehicle (rows of `others`), one piece for a vehicle that does not
+    turn, the chords of a turning one in time order."""
 
-    vehicle: np.ndarray  # (P,) int: the vehicle's row in `others`
+    vehicle: np.ndarray  # (P,) int: the vehicle's row in `others`, non-decreasing
     origin: np.ndarray  # (P,) complex [m]: where the piece's line passes at t = 0 (x + iy)
     speed: np.ndarray  # (P,) [m/s]
     direction: np.ndarray  # (P,) complex: exp(i heading), of the motion and of the vehicle's box
@@ -278,51 +284,52 @@ def predict(others: ArrayLike, cfg: PlannerConfig) -> Prediction:
     """
     x, y, v, psi, omega = as_others(others).T
     # No car turns tighter than min_turn_radius: a larger measured yaw rate is noise.
-    omega = np.clip(omega, -v / cfg.min_turn_radius, v / cfg.min_turn_radius)  # [rad/s]
-    z0 = x + 1j * y  # [m]
-    straight = np.flatnonzero(omega == 0.0)
-    unbounded = np.full(len(straight), np.inf)
-    pieces = Prediction(straight, z0[straight], v[straight], np.exp(1j * psi[straight]),
-                        -unbounded, unbounded)
-    if omega.any():
-        turning = np.flatnonzero(omega)
-        chords = arc_chords(z0[turning], v[turning], psi[turning], omega[turning], cfg)
-        chords = chords._replace(vehicle=turning[chords.vehicle])  # rows of `others`
-        pieces = Prediction(*(np.concatenate(both) for both in zip(pieces, chords)))
-    return pieces
+    limit = v / cfg.min_turn_radius  # [rad/s]
+    omega = np.minimum(np.maximum(omega, -limit), limit)  # [rad/s], clipped to [-limit, limit]
+    return arc_chords(x + 1j * y, v, psi, omega, cfg)
 
 
 def arc_chords(z0: np.ndarray, v: np.ndarray, psi: np.ndarray, omega: np.ndarray,
                cfg: PlannerConfig) -> Prediction:
-    """The arcs of turning vehicles over [0, horizon], each cut into chords of equal duration.
+    """The arcs of the vehicles over [0, horizon], each cut into chords of equal duration.
 
     z0 (M,) complex [m] position x + iy, v (M,) [m/s], psi (M,) [rad] heading, omega (M,) [rad/s]
-    turn rate, nonzero. A vehicle moves on the circle of signed radius r = v / omega through z0,
+    turn rate. A vehicle moves on the circle of signed radius r = v / omega through z0,
     tangent to its heading (counter-clockwise for omega > 0): after turning by an angle a it is
     at the end of the chord z0 + 2 r sin(a / 2) exp(i (psi + a / 2)), and heads psi + a. Each arc
     is cut into n chords, n the smallest count for which each chord turns by at most
     cfg.chord_angle and lies at most cfg.chord_sagitta inside the arc. A chord joins two points
-    of the arc, so the prediction is exact at the chords' ends. `vehicle` of the result indexes
-    these M vehicles.
+    of the arc, so the prediction is exact at the chords' ends. A vehicle with omega = 0 is one
+    piece, its straight line, unbounded in time. `vehicle` of the result indexes these M
+    vehicles, in order.
     """
     # Over a chord of duration dt the heading turns by |omega| dt, and the chord lies up to
     # |r| (1 - cos(omega dt / 2)) < v |omega| dt^2 / 8 inside the arc.
-    n = np.ceil(np.maximum(np.abs(omega) * cfg.horizon / cfg.chord_angle,
-                           cfg.horizon * np.sqrt(v * np.abs(omega) / (8 * cfg.chord_sagitta)))).astype(int)
+    abs_omega = np.abs(omega)
+    n = np.ceil(np.maximum(abs_omega * cfg.horizon / cfg.chord_angle,
+                           cfg.horizon * np.sqrt(v * abs_omega / (8 * cfg.chord_sagitta))))
+    straight = n == 0  # (M,) omega = 0: one piece
+    n = np.maximum(n, 1).astype(int)
     step = cfg.horizon / n  # (M,) [s] duration of a chord
     turn = omega * step  # (M,) [rad] heading change over a chord
-    r = v / omega  # (M,) [m] signed radius
+    diameter = 2 * v / np.where(straight, 1.0, omega)  # (M,) [m] 2 r, signed; any value if straight
+    half_turn = np.exp(0.5j * turn)  # (M,) exp(i turn / 2), imaginary part sin(turn / 2)
     # A chord over the turn `turn` is 2 r sin(turn / 2) long (signed) and heads half-way round.
-    chord_velocity = 2 * r * np.sin(turn / 2) / step * np.exp(0.5j * turn)  # (M,) [m/s] times exp(i psi_k)
-    vehicle = np.repeat(np.arange(len(n)), n)  # (P,)
-    index = np.arange(len(vehicle)) - np.repeat(np.cumsum(n) - n, n)  # chord 0, 1, ... of its vehicle
-    t_from = index * step[vehicle]  # (P,) [s]
-    turned = turn[vehicle] * index  # (P,) [rad] heading change before the chord
-    first = z0[vehicle] + 2 * r[vehicle] * np.sin(turned / 2) * np.exp(1j * (psi[vehicle] + turned / 2))
-    velocity = chord_velocity[vehicle] * np.exp(1j * (psi[vehicle] + turned))  # (P,) [m/s]
-    speed = np.abs(velocity)
-    return Prediction(vehicle, first - velocity * t_from, speed, velocity / speed,
-                      t_from, t_from + step[vehicle])
+    chord_speed = np.where(straight, v, diameter * half_turn.imag / step)  # (M,) [m/s]
+    vehicle = np.arange(len(n)).repeat(n)  # (P,)
+    index = np.arange(len(vehicle)) - (n.cumsum() - n)[vehicle]  # chord 0, 1, ... of its vehicle
+    step = step[vehicle]  # (P,) [s]
+    t_from = index * step  # (P,) [s]
+    # Before the chord the vehicle has turned by a = index turn: the chord starts at
+    # z0 + 2 r sin(a / 2) exp(i (psi + a / 2)) and heads psi + a + turn / 2.
+    half_turned = np.exp(0.5j * (turn[vehicle] * index))  # (P,) exp(i a / 2)
+    towards_first = np.exp(1j * psi)[vehicle] * half_turned  # (P,) exp(i (psi + a / 2))
+    first = z0[vehicle] + diameter[vehicle] * half_turned.imag * towards_first  # (P,) [m]
+    direction = towards_first * half_turned * half_turn[vehicle]  # (P,) exp(i (psi + a + turn / 2))
+    speed = chord_speed[vehicle]  # (P,) [m/s]
+    straight = straight[vehicle]
+    return Prediction(vehicle, first - speed * direction * t_from, speed, direction,
+                      np.where(straight, -np.inf, t_from), np.where(straight, np.inf, t_from + step))
 
 
 class Occupancy(NamedTuple):
@@ -339,8 +346,7 @@ class Occupancy(NamedTuple):
 
 
 def _window(x0: np.ndarray, rate: np.ndarray, low: ArrayLike, high: ArrayLike):
-    """The times t at which low < x0 + rate t < high, as (start, end) arrays."""
-    rate = np.where(np.abs(rate) < 1e-9, 1e-9, rate)  # no motion: a window of all or no time
+    """The times t at which low < x0 + rate t < high, as (start, end) arrays; rate != 0."""
     t_low, t_high = (low - x0) / rate, (high - x0) / rate
     return np.minimum(t_low, t_high), np.maximum(t_low, t_high)
 
@@ -364,33 +370,36 @@ def path_occupancy(prediction: Prediction, path: PathSegments, cfg: PlannerConfi
     band_max = W / 2 + 0.5 * math.hypot(L, W) + cfg.lateral_margin  # [m]
     radius = np.hypot(path.length / 2 + band_max, band_max)  # (S,) [m]
     t_from, t_to = np.maximum(pred.t_from, 0.0), np.minimum(pred.t_to, horizon)  # (P,) [s]
-    middle = pred.origin + pred.speed * pred.direction * ((t_from + t_to) / 2)  # (P,) [m]
+    velocity = pred.speed * pred.direction  # (P,) [m/s]
+    middle = pred.origin + velocity * ((t_from + t_to) / 2)  # (P,) [m]
     reach = radius + (pred.speed * (t_to - t_from) / 2)[:, None]  # (P, S) [m]
-    dx = middle.real[:, None] - path.middle.real  # (P, S) [m]
-    dy = middle.imag[:, None] - path.middle.imag
-    near = dx * dx + dy * dy < reach * reach
-    piece, segment = np.divmod(np.flatnonzero(near), len(path.length))  # (Q',) each
+    near = np.abs(middle[:, None] - path.middle) < reach  # (P, S)
+    piece, segment = np.divmod(near.ravel().nonzero()[0], len(path.middle))  # (Q',) each
 
     to_segment = path.to_segment[segment]
     heading = pred.direction[piece] * to_segment  # cos + i sin of the heading relative to the segment
     position = (pred.origin[piece] - path.start[segment]) * to_segment  # [m] at t = 0
-    velocity = pred.speed[piece] * heading  # [m/s]
+    velocity = velocity[piece] * to_segment  # [m/s]
     cos_rel, sin_rel = np.abs(heading.real), np.abs(heading.imag)
-    half_along = 0.5 * (L * cos_rel + W * sin_rel)
-    band = W / 2 + 0.5 * (L * sin_rel + W * cos_rel) + cfg.lateral_margin  # [m]
-    t_in_across, t_out_across = _window(position.imag, velocity.imag, -band, band)
-    t_in_along, t_out_along = _window(position.real, velocity.real, -band * path.miter_start[segment],
+    half_along = L / 2 * cos_rel + W / 2 * sin_rel
+    band = W / 2 + cfg.lateral_margin + (L / 2 * sin_rel + W / 2 * cos_rel)  # [m]
+    # No motion along or across: a rate of 1e-9 m/s, so a window of all or no time.
+    rate = velocity.view(np.float64)  # (2 Q',) along, across, along, ...
+    rate = np.where(np.abs(rate) < 1e-9, 1e-9, rate).view(np.complex128)
+    t_in_across, t_out_across = _window(position.imag, rate.imag, -band, band)
+    t_in_along, t_out_along = _window(position.real, rate.real, -band * path.miter_start[segment],
                                       path.length[segment] + band * path.miter_end[segment])
     t_in = np.maximum(np.maximum(t_in_across, t_in_along), pred.t_from[piece])
     t_out = np.minimum(np.minimum(t_out_across, t_out_along), pred.t_to[piece])
-    kept = (t_in <= t_out) & (t_in <= horizon) & (t_out >= 0.0)
-    return Occupancy(piece[kept], segment[kept], t_in[kept], t_out[kept],
-                     (path.s_start[segment] + position.real)[kept], velocity.real[kept], half_along[kept])
+    kept = (np.maximum(t_in, 0.0) <= np.minimum(t_out, horizon)).nonzero()[0]  # overlaps [0, horizon]
+    segment = segment[kept]
+    return Occupancy(piece[kept], segment, t_in[kept], t_out[kept],
+                     path.s_start[segment] + position.real[kept], velocity.real[kept], half_along[kept])
 
 
 class OnPath(NamedTuple):
     """The others' predictions on the ego path, one entry per (vehicle, grid time) at which the
-    vehicle is on the path; (P,) each."""
+    vehicle is on the path, ordered by vehicle, then time; (P,) each."""
 
     vehicle: np.ndarray  # (P,) int: its row in `others`
     k: np.ndarray  # (P,) int: the grid time t_k = k dt
@@ -410,21 +419,35 @@ def on_path(others: np.ndarray, path: PathSegments, times: np.ndarray, cfg: Plan
         return nobody
     # One arc length per (vehicle, grid time): that of the vehicle's first window that holds the
     # time (a turning vehicle's chords share their end times; two segments share a time where
-    # the path bends, with arc lengths less than a band width apart). The (window, time) pairs,
-    # sorted stably by (vehicle, time), keep the first of each run of equal keys.
-    k_first = np.searchsorted(times, occ.t_in)  # (Q,) the first grid time >= t_in
-    count = np.maximum(np.searchsorted(times, occ.t_out, side="right") - k_first, 0)  # grid times in it
-    window = np.repeat(np.arange(len(count)), count)  # (window, grid time) pairs, in window order
-    # within each window k runs k_first, k_first + 1, ...
-    k = np.arange(len(window)) + np.repeat(k_first - np.cumsum(count) + count, count)
-    vehicle = prediction.vehicle[occ.piece[window]]
-    key = vehicle * len(times) + k
-    order = np.argsort(key, kind="stable")
-    key, window, k, vehicle = key[order], window[order], k[order], vehicle[order]
-    first = np.concatenate(([True], key[1:] != key[:-1]))[:len(key)]
-    window, k = window[first], k[first]
-    return OnPath(vehicle[first], k, occ.s_start[window] + occ.s_rate[window] * times[k],
+    # the path bends, with arc lengths less than a band width apart).
+    window, k = ((occ.t_in[:, None] <= times) & (times <= occ.t_out[:, None])).nonzero()  # holds t_k
+    first = np.full((len(others), len(times)), len(occ.piece))  # (M, K) the first window, Q if none
+    np.minimum.at(first, (prediction.vehicle[occ.piece[window]], k), window)
+    vehicle, k = (first < len(occ.piece)).nonzero()
+    window = first[vehicle, k]
+    return OnPath(vehicle, k, occ.s_start[window] + occ.s_rate[window] * times[k],
                   occ.s_rate[window], occ.half_along[window])
+
+
+_setups: dict = {}  # (id(cfg), id(path_s), id(path_xy)) -> (cfg, path_s, path_xy, lattice, segments)
+
+
+def _setup(cfg: PlannerConfig, path_s: ArrayLike, path_xy: ArrayLike) -> tuple[_Lattice, PathSegments]:
+    """The lattice of cfg and the segments of the path, found by the identity of the three
+    arguments: the environment passes the same objects at every step of an episode, and hashing
+    them by value (a config's 30 fields, a path's bytes) would cost microseconds every step. New
+    objects fall back on the caches by value (lattice, _cached_path_segments). A path's arrays
+    must not be modified in place once planned on (the environment never does)."""
+    key = (id(cfg), id(path_s), id(path_xy))
+    hit = _setups.get(key)
+    if hit is not None and hit[0] is cfg and hit[1] is path_s and hit[2] is path_xy:
+        return hit[3], hit[4]
+    if len(_setups) >= 16:  # a new path every episode: keep the cache small
+        _setups.clear()
+    s_bytes, xy_bytes = (np.asarray(path, dtype=float).tobytes() for path in (path_s, path_xy))
+    found = lattice(cfg), _cached_path_segments(s_bytes, xy_bytes)
+    _setups[key] = (cfg, path_s, path_xy, *found)  # the references keep the ids from being reused
+    return found
 
 
 def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np.ndarray,
@@ -437,69 +460,76 @@ def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np
     heading [rad, counter-clockwise from +x], yaw rate [rad/s, counter-clockwise positive]; an
     (M, 4) array without the yaw rate means yaw rate 0 (straight-line predictions).
     """
-    lat = lattice(cfg)
+    s0, v0 = float(s0), float(v0)
+    lat, path = _setup(cfg, path_s, path_xy)
     L = cfg.length
-    a0 = min(max(a0, cfg.a_min), cfg.a_max)  # round-off in a0 must not make every candidate infeasible
+    # round-off in a0 must not make every candidate infeasible
+    a0 = min(max(float(a0), cfg.a_min), cfg.a_max)
 
-    # Eqs. (18)-(19): every candidate from (v0, a0) at once (see _Lattice); here the speed,
-    # acceleration and jerk, the positions below where they are needed.
-    trajectories = lat.fixed[1:] + v0 * lat.per_v0[1:] + a0 * lat.per_a0[1:]  # (3, K, C)
-    acc, jerk = trajectories[1], trajectories[2]  # (K, C) each
+    # Eqs. (18)-(19): every candidate from (v0, a0) at once (see _Lattice): the position past s0,
+    # speed, acceleration and jerk.
+    trajectories = np.dot((1.0, v0, a0), lat.responses.reshape(3, -1))  # (4 K C,)
+    trajectories = trajectories.reshape(lat.responses.shape[1:])  # (4, K, C)
+    pos, acc, jerk = trajectories[0], trajectories[2], trajectories[3]  # (K, C) each
     # Kinematic feasibility: 0 <= v <= v_max (no reversing) and a_min <= a <= a_max throughout.
-    speed_acc = trajectories[:2]  # (2, K, C)
+    speed_acc = trajectories[1:3]  # (2, K, C)
     feasible = ((speed_acc.min(axis=1) >= lat.lower) & (speed_acc.max(axis=1) <= lat.upper)).all(axis=0)
+    if not feasible.any():  # FSM: brake in emergency (below), whatever the others do
+        return float(cfg.a_min), "brake"
 
     # The others' predictions (constant speed and turn rate, see predict) on the path.
-    path_s, path_xy = np.asarray(path_s, dtype=float), np.asarray(path_xy, dtype=float)
     others = as_others(others)
-    seen = on_path(others, _cached_path_segments(path_s.tobytes(), path_xy.tobytes()), lat.times, cfg)
+    seen = on_path(others, path, lat.times, cfg)
+    ahead = seen.s - s0  # (P,) [m] along the path from the ego's centre, < 0 behind it
     now = seen.k == 0
     # A vehicle on the path behind the ego now is a follower: no plan of the ego can avoid
     # it (SUMO's car following brakes it), so it blocks no candidate.
     follower = np.zeros(len(others), dtype=bool)
-    follower[seen.vehicle[now & (seen.s < s0)]] = True
-    blocking = ~follower[seen.vehicle]  # (P,)
+    follower[seen.vehicle[now & (ahead < 0)]] = True
 
     # delta_traj: a candidate collides if at some grid time it is closer along the path to a
     # blocking vehicle than their two half lengths plus the margin. Only the (vehicle, time)
     # pairs with a vehicle on the path, and only feasible candidates (no other is ever chosen),
-    # are compared.
+    # are compared; and of the pairs only those within reach of some candidate at their time,
+    # from the nearest to the farthest (the same comparisons, so no round-off slips through).
+    checked = feasible.nonzero()[0]  # (C',)
+    pos = pos[:, checked]  # (K, C') [m] past s0
+    reach = L / 2 + seen.half_along + cfg.longitudinal_margin  # (P,) [m]
+    k = seen.k
+    near = ((pos.min(axis=1)[k] - ahead < reach) & (ahead - pos.max(axis=1)[k] < reach)
+            & ~follower[seen.vehicle]).nonzero()[0]  # (P',) blocking and within reach
+    close = np.abs(pos[k[near]] - ahead[near, None]) < reach[near, None]  # (P', C')
+    # Eq. (21): phi_coll = delta_traj
     phi_coll = np.zeros(len(lat.te))
-    if blocking.any():
-        checked = np.flatnonzero(feasible)  # (C',)
-        pos = lat.fixed[0] + v0 * lat.per_v0[0] + a0 * lat.per_a0[0]  # (K, C) [m] past s0
-        apart = pos[:, checked][seen.k[blocking]] - (seen.s[blocking] - s0)[:, None]  # (P', C') [m]
-        close = np.abs(apart) < (L / 2 + seen.half_along[blocking] + cfg.longitudinal_margin)[:, None]
-        # Eq. (21): phi_coll = delta_traj
-        phi_coll[checked] = close.any(axis=0)
-    # Eq. (21): phi_d = |d_e - d0| + |d_e - d_ref| = 0, since the ego stays on its lane centre
-    phi_d = 0.0
+    phi_coll[checked] = close.any(axis=0)
     # Eq. (21): phi_jerk = sum_t (|l'''(t)| + |d'''(t)|), a Riemann sum over the grid (d''' = 0)
     phi_jerk = np.abs(jerk).sum(axis=0) * cfg.dt
-    # Eq. (20): cost = K1 phi_coll + K2 phi_v + K3 phi_t + K4 phi_d + K5 phi_jerk
-    cost = cfg.K1 * phi_coll + cfg.K2 * lat.phi_v + cfg.K3 * lat.phi_t + cfg.K4 * phi_d + cfg.K5 * phi_jerk
+    # Eq. (20): cost = K1 phi_coll + K2 phi_v + K3 phi_t + K4 phi_d + K5 phi_jerk, the middle
+    # three fixed per candidate (_Lattice.cost_fixed; phi_d = 0)
+    cost = cfg.K1 * phi_coll + lat.cost_fixed + cfg.K5 * phi_jerk
     cost = np.where(feasible, cost, np.inf)
 
     # FSM: the cheapest drive candidate if it is collision-free, else the cheapest stop
     # candidate if it is, else brake in emergency. (K1 makes the cheapest candidate of a set
     # collision-free whenever a feasible collision-free one exists.)
-    a_t1, mode = cfg.a_min, "brake"
-    for name, ids in (("drive", lat.drive_ids), ("stop", lat.stop_ids)):
-        best = ids[np.argmin(cost[ids])]
+    for mode, ids in (("drive", lat.drive_ids), ("stop", lat.stop_ids)):
+        best = ids.start + int(cost[ids].argmin())
         if cost[best] < cfg.K1:
             # Eq. (22): a_t1 = sqrt(l''(t1)^2 + d''(t1)^2), kept WITH the sign of l''(t1), as d'' = 0
             # on a fixed path: the printed magnitude could never brake (EQUATIONS.md, note 3).
-            a_t1, mode = acc[1, best], name
+            a_t1 = float(acc[1, best])
             break
+    else:  # brake: a_t1 = a_min, and so is a_base of Eq. (23), whatever IDM says
+        return float(cfg.a_min), "brake"
 
     # IDM toward the leader: the nearest vehicle on the path ahead of the ego now.
-    ahead = np.flatnonzero(now & (seen.s > s0))
-    gap, dv = np.inf, 0.0  # free road
-    if len(ahead):
-        gaps = seen.s[ahead] - s0 - L / 2 - seen.half_along[ahead]  # bumper to bumper
-        leader = ahead[np.argmin(gaps)]
-        gap, dv = gaps.min(), v0 - seen.s_rate[leader]
+    leading = (now & (ahead > 0)).nonzero()[0]
+    gap, dv = math.inf, 0.0  # free road
+    if len(leading):
+        gaps = ahead[leading] - L / 2 - seen.half_along[leading]  # bumper to bumper
+        leader = int(gaps.argmin())
+        gap, dv = float(gaps[leader]), v0 - float(seen.s_rate[leading[leader]])
     a_idm = idm_acceleration(v0, cfg.v_target, gap, dv, cfg.a_max, cfg.idm_comfort_decel,
                              cfg.idm_min_gap, cfg.idm_time_headway, cfg.idm_delta)
     # Eq. (23): a_base = min(a_t1, a_IDM), within the ego's limits
-    return float(np.clip(min(a_t1, a_idm), cfg.a_min, cfg.a_max)), mode
+    return float(min(max(min(a_t1, a_idm), cfg.a_min), cfg.a_max)), mode

@@ -299,3 +299,60 @@ def test_vehicle_turning_onto_the_path_blocks_the_ego_but_its_tangent_would_not(
     a_turning, _ = base_action(8.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, turner, CFG)
     assert a_turning < empty - 0.5
     assert base_action(8.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, turner[:, :4], CFG)[0] == pytest.approx(empty)
+
+
+# ---- implementation details: per-path cache, mixed predictions, first window per time -------
+
+def test_the_per_path_cache_follows_the_path_passed():
+    # base_action finds a path's segments by the identity of its arrays (the environment passes the
+    # same ones every step); another path, a copy of one, or lists must give what a fresh start gives.
+    ring = ring_path(28.2)
+    car = np.array([[40.0, -1.0, 0.0, 0.0], [0.0, -28.2, 0.0, 0.0]])  # stopped: one on each path
+    calls = [(0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY), (10.0, 8.0, 0.0, *ring),
+             (0.0, 8.0, 0.0, STRAIGHT_S.copy(), STRAIGHT_XY.copy()), (0.0, 8.0, 0.0, list(STRAIGHT_S), STRAIGHT_XY.tolist()),
+             (10.0, 8.0, 0.0, *ring), (0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY)]
+    cached = [base_action(*call, car, CFG) for call in calls]
+    fresh = []
+    for call in calls:
+        planner._setups.clear()
+        planner._cached_path_segments.cache_clear()
+        planner.lattice.cache_clear()
+        fresh.append(base_action(*call, car, CFG))
+    assert cached == fresh
+    assert cached[0] != cached[1]  # the two paths see different cars
+    assert cached[0] == cached[2] == cached[3] == cached[5] and cached[1] == cached[4]
+
+
+def test_mixed_predictions_are_each_vehicles_own_in_row_order():
+    cars = np.array([[40.0, -40.0, 10.0, np.pi / 2, 0.0], [25.0, 0.0, 10.0, np.pi / 2, 0.4],
+                     [5.0, 3.2, 0.0, 0.1, 0.3], [0.0, 0.0, 5.0, 0.0, -10.0], [30.0, 0.0, 8.0, 1.0, 0.0]])
+    together = planner.predict(cars, CFG)
+    assert np.all(np.diff(together.vehicle) >= 0)
+    for i, car in enumerate(cars):
+        alone = planner.predict(car[None], CFG)
+        mine = together.vehicle == i
+        for field in ("origin", "speed", "direction", "t_from", "t_to"):
+            np.testing.assert_allclose(getattr(together, field)[mine], getattr(alone, field), rtol=0, atol=1e-12)
+
+
+def test_on_path_takes_each_vehicles_first_window_at_each_time():
+    # On a ring path of short segments, a ring vehicle's chords share their end times and the
+    # segments' bands overlap at the bends: several windows hold a time; the first one counts.
+    path = planner.path_segments(*ring_path(25.0))
+    others = np.vstack([on_ring(25.0, -1.2, 8.0, 8.0 / 25.0), on_ring(25.0, 0.3, 6.0, 6.0 / 25.0),
+                        [[-20.0, -30.0, 5.0, 0.3, 0.0]]])
+    times = planner.lattice(CFG).times
+    seen = planner.on_path(others, path, times, CFG)
+    prediction = planner.predict(others, CFG)
+    occ = planner.path_occupancy(prediction, path, CFG)
+    expected, holding = {}, 0
+    for w in range(len(occ.piece)):  # windows in order: the first to claim (vehicle, k) keeps it
+        for k, t in enumerate(times):
+            if occ.t_in[w] <= t <= occ.t_out[w]:
+                holding += 1
+                expected.setdefault((prediction.vehicle[occ.piece[w]], k), occ.s_start[w] + occ.s_rate[w] * t)
+    assert len(seen.k) == len(expected) > 0
+    assert holding > len(expected) + 10  # many times held by two windows
+    for v, k, s in zip(seen.vehicle, seen.k, seen.s):
+        assert s == expected[(v, k)]
+    assert list(zip(seen.vehicle, seen.k)) == sorted(expected)  # vehicle by vehicle, then time
