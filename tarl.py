@@ -674,7 +674,8 @@ class DrivingEnv:
         if ids:
             # columns: x, y (front bumper -> centre), speed, SUMO angle -> heading, yaw rate
             others = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE], 0.0) for k in ids])
-            heading = others[:, 3] = np.radians(90.0 - others[:, 3])
+            heading = np.radians(90.0 - others[:, 3])
+            others[:, 3] = heading
             others[:, 0] -= 0.5 * L * np.cos(heading)
             others[:, 1] -= 0.5 * L * np.sin(heading)
             before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading.tolist())])
@@ -908,7 +909,8 @@ class SAC:
             # several iterations"; Table 2's tau is SAC's Polyak averaging, used here for both agents.
             torch._foreach_lerp_(self._target, self._online, self.cfg.tau)
         # 0-d tensors, float() to read: turning them into numbers at every update costs 3% of it
-        return {"critic_loss": loss_q.detach(), "policy_loss": loss_pi.detach(), "temperature_loss": loss_alpha.detach()}
+        return {"critic_loss": loss_q.detach(), "policy_loss": loss_pi.detach(),
+                "temperature_loss": loss_alpha.detach()}
 
     def state_dict(self) -> dict:
         """Plain tensors and dicts only: loadable with torch.load(weights_only=True)."""
@@ -1047,7 +1049,7 @@ class TrainConfig:
     """Algorithm 1's schedule. None of these is in the paper; each says why its value."""
 
     steps: int = 100_000  # simulator steps in all (both loops of Alg. 1 count). The default
-    #                      budget runs in about 20 minutes here; --steps 500000 is N_train of Table 2.
+    #                      budget trains in about 12 minutes here (README, Speed); --steps 500000 is N_train of Table 2.
     sac_fraction: float = 0.4  # Alg. 1 line 2: plain SAC trains for this share of the steps; that
     #                            model is Table 3's SAC row. The rest alternates the two loops.
     n_timing: int = 20  # N_T: timing decisions per imagination loop (Alg. 1 lines 4-15). With T

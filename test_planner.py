@@ -309,7 +309,8 @@ def test_the_per_path_cache_follows_the_path_passed():
     ring = ring_path(28.2)
     car = np.array([[40.0, -1.0, 0.0, 0.0], [0.0, -28.2, 0.0, 0.0]])  # stopped: one on each path
     calls = [(0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY), (10.0, 8.0, 0.0, *ring),
-             (0.0, 8.0, 0.0, STRAIGHT_S.copy(), STRAIGHT_XY.copy()), (0.0, 8.0, 0.0, list(STRAIGHT_S), STRAIGHT_XY.tolist()),
+             (0.0, 8.0, 0.0, STRAIGHT_S.copy(), STRAIGHT_XY.copy()),
+             (0.0, 8.0, 0.0, list(STRAIGHT_S), STRAIGHT_XY.tolist()),
              (10.0, 8.0, 0.0, *ring), (0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY)]
     cached = [base_action(*call, car, CFG) for call in calls]
     fresh = []

@@ -1,0 +1,390 @@
+"""How fast is a training step? Both halves of it, measured side by side in one run.
+
+    python bench/speed.py                 # a table
+    python bench/speed.py --json          # the same numbers as one JSON object
+    python bench/speed.py --quick         # fewer repetitions (a smoke test, noisier)
+
+(a) SAC updates per second at the paper's sizes (Table 2: batch 256, two hidden layers of 256,
+    observation 67, twin critics, automatic temperature): tarl.SAC.update against a plain
+    reference update written here the usual way (separate critic modules, separate standard Adam
+    optimizers, critic step before policy step, a per-parameter soft-update loop), for the
+    actor's continuous SAC and the timing taker's discrete SAC. Also the machine's matrix-multiply
+    peak and the FLOPs of one update (counted by torch), so the ceiling peak / FLOPs is known.
+(b) Environment steps per second on each scenario: bare SUMO stepping (simulationStep alone, the
+    humans still spawning, no ego) against the full environment step (SUMO, its queries, the
+    observation, the base planner, the level-k game, the collision check); the time SUMO's step
+    takes inside the full step, and the rest: the project's own work per step.
+(c) Base-planner calls per second on the states met in (b), and candidates per call.
+(d) Training steps per second: Algorithm 1 on the roundabout, in step 1 (plain SAC, one update
+    per step) and in the imagination + actor loops (an update per actor step and per timing
+    decision), and what that makes of the paper's 5 x 10^5 steps.
+
+The machine is shared and its speed drifts: variants run in alternating blocks and the report
+gives medians (rates) and the median of the per-round paired ratios.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.utils.flop_counter import FlopCounterMode
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import planner  # noqa: E402
+import tarl  # noqa: E402
+from tarl import SAC, SACConfig, mlp  # noqa: E402
+
+OBS_DIM, T_MAX, LOW, HIGH = tarl.OBS_DIM, tarl.T_MAX, -3.0, 2.0
+med = statistics.median
+
+
+# ---- (a) SAC ------------------------------------------------------------------------------
+
+class PlainSAC:
+    """Plain SAC update for reference: continuous (act_dim) or discrete (n_actions, choices 1..n)."""
+
+    def __init__(self, obs_dim, act_dim=None, n_actions=None, cfg=SACConfig(), target_entropy=None):
+        self.cfg, self.discrete = cfg, n_actions is not None
+        out = n_actions if self.discrete else 2 * act_dim
+        q_in, q_out = (obs_dim, n_actions) if self.discrete else (obs_dim + act_dim, 1)
+        self.actor = mlp(obs_dim, out, cfg.hidden)
+        self.qf1, self.qf2 = mlp(q_in, q_out, cfg.hidden), mlp(q_in, q_out, cfg.hidden)
+        self.qf1_target, self.qf2_target = copy.deepcopy(self.qf1), copy.deepcopy(self.qf2)
+        self.q_optimizer = torch.optim.Adam([*self.qf1.parameters(), *self.qf2.parameters()], lr=cfg.lr)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr)
+        self.log_alpha = torch.zeros(1, requires_grad=True)
+        self.a_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.lr)
+        self.alpha = 1.0
+        self.target_entropy = target_entropy if target_entropy is not None else -float(act_dim)
+        self.scale, self.bias = (HIGH - LOW) / 2, (HIGH + LOW) / 2
+
+    def get_action(self, obs):
+        mean, log_std = self.actor(obs).chunk(2, -1)
+        std = log_std.clamp(-20, 2).exp()
+        normal = torch.distributions.Normal(mean, std)
+        x = normal.rsample()
+        y = torch.tanh(x)
+        log_prob = normal.log_prob(x) - torch.log(self.scale * (1 - y.pow(2)) + 1e-6)
+        return y * self.scale + self.bias, log_prob.sum(1)
+
+    def get_probs(self, obs):
+        logits = self.actor(obs)
+        return F.softmax(logits, -1), F.log_softmax(logits, -1)
+
+    def update(self, b):
+        if self.discrete:
+            return self._update_discrete(b)
+        with torch.no_grad():
+            next_a, next_logp = self.get_action(b["next_obs"])
+            x = torch.cat([b["next_obs"], next_a], 1)
+            min_q = torch.min(self.qf1_target(x), self.qf2_target(x)).view(-1) - self.alpha * next_logp
+            y = b["rew"] + b["discount"] * (1 - b["done"]) * min_q
+        x = torch.cat([b["obs"], b["act"]], 1)
+        qf_loss = F.mse_loss(self.qf1(x).view(-1), y) + F.mse_loss(self.qf2(x).view(-1), y)
+        self.q_optimizer.zero_grad()
+        qf_loss.backward()
+        self.q_optimizer.step()
+
+        pi, logp = self.get_action(b["obs"])
+        x = torch.cat([b["obs"], pi], 1)
+        actor_loss = (self.alpha * logp - torch.min(self.qf1(x), self.qf2(x)).view(-1)).mean()
+        self.actor_optimizer.zero_grad()
+        actor_loss.backward()
+        self.actor_optimizer.step()
+
+        with torch.no_grad():
+            _, logp = self.get_action(b["obs"])
+        alpha_loss = (-self.log_alpha.exp() * (logp + self.target_entropy)).mean()
+        self.a_optimizer.zero_grad()
+        alpha_loss.backward()
+        self.a_optimizer.step()
+        self.alpha = self.log_alpha.exp().item()
+        self._soft_update()
+        return qf_loss.item(), actor_loss.item(), alpha_loss.item()
+
+    def _update_discrete(self, b):
+        with torch.no_grad():
+            probs, logp = self.get_probs(b["next_obs"])
+            min_q = torch.min(self.qf1_target(b["next_obs"]), self.qf2_target(b["next_obs"]))
+            v = (probs * (min_q - self.alpha * logp)).sum(1)
+            y = b["rew"] + b["discount"] * (1 - b["done"]) * v
+        idx = (b["act"] - 1).view(-1, 1)
+        q1, q2 = self.qf1(b["obs"]).gather(1, idx).view(-1), self.qf2(b["obs"]).gather(1, idx).view(-1)
+        qf_loss = F.mse_loss(q1, y) + F.mse_loss(q2, y)
+        self.q_optimizer.zero_grad()
+        qf_loss.backward()
+        self.q_optimizer.step()
+
+        probs, logp = self.get_probs(b["obs"])
+        with torch.no_grad():
+            min_q = torch.min(self.qf1(b["obs"]), self.qf2(b["obs"]))
+        actor_loss = (probs * (self.alpha * logp - min_q)).sum(1).mean()
+        self.actor_optimizer.zero_grad()
+        actor_loss.backward()
+        self.actor_optimizer.step()
+
+        probs, logp = probs.detach(), logp.detach()
+        alpha_loss = (probs * (-self.log_alpha.exp() * (logp + self.target_entropy))).sum(1).mean()
+        self.a_optimizer.zero_grad()
+        alpha_loss.backward()
+        self.a_optimizer.step()
+        self.alpha = self.log_alpha.exp().item()
+        self._soft_update()
+        return qf_loss.item(), actor_loss.item(), alpha_loss.item()
+
+    def _soft_update(self):
+        for net, target in ((self.qf1, self.qf1_target), (self.qf2, self.qf2_target)):
+            for p, tp in zip(net.parameters(), target.parameters()):
+                tp.data.copy_(self.cfg.tau * p.data + (1 - self.cfg.tau) * tp.data)
+
+
+def random_batches(n, obs_dim, discrete, batch_size=256, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    out = []
+    for _ in range(n):
+        if discrete:
+            act = torch.randint(1, T_MAX + 1, (batch_size,), generator=g)
+            discount = 0.99 ** act.float()
+        else:
+            act = torch.rand(batch_size, 1, generator=g) * (HIGH - LOW) + LOW
+            discount = torch.full((batch_size,), 0.99)
+        out.append({"obs": torch.randn(batch_size, obs_dim, generator=g), "act": act,
+                    "rew": torch.randn(batch_size, generator=g),
+                    "next_obs": torch.randn(batch_size, obs_dim, generator=g),
+                    "discount": discount, "done": (torch.rand(batch_size, generator=g) < 0.05).float()})
+    return out
+
+
+def rate(update, batches, k):
+    start = time.perf_counter()
+    for i in range(k):
+        update(batches[i % len(batches)])
+    return k / (time.perf_counter() - start)
+
+
+def paired(fast, plain, batches, rounds, k):
+    """Alternating blocks of k updates; medians of the rates and of the per-round ratios."""
+    for _ in range(20):  # warm-up
+        fast.update(batches[0])
+        plain.update(batches[0])
+    fast_rates, plain_rates = [], []
+    for r in range(rounds):
+        order = [(fast, fast_rates), (plain, plain_rates)]
+        for agent, rates in order if r % 2 == 0 else order[::-1]:
+            rates.append(rate(agent.update, batches, k))
+    return med(fast_rates), med(plain_rates), med(f / p for f, p in zip(fast_rates, plain_rates))
+
+
+def matmul_gflops(n=1024, k=100):
+    """The machine's float32 matrix-multiply rate [GFLOP/s] with torch's present threads (best of 5)."""
+    a, b = torch.randn(n, n), torch.randn(n, n)
+    for _ in range(5):
+        a @ b
+    best = 0.0
+    for _ in range(5):
+        start = time.perf_counter()
+        for _ in range(k // 5):
+            a @ b
+        best = max(best, 2 * n**3 * (k // 5) / (time.perf_counter() - start) / 1e9)
+    return best
+
+
+def update_gflop(agent, batch) -> float:
+    with FlopCounterMode(display=False) as counter:
+        agent.update(batch)
+    return counter.get_total_flops() / 1e9
+
+
+def sac_section(rounds, k) -> dict:
+    cfg = SACConfig()
+    actor, plain = SAC(OBS_DIM, act_dim=1, low=LOW, high=HIGH, cfg=cfg), PlainSAC(OBS_DIM, act_dim=1, cfg=cfg)
+    batches = random_batches(8, OBS_DIM, False)
+    fast_c, plain_c, ratio_c = paired(actor, plain, batches, rounds, k)
+    timing = SAC(OBS_DIM + 1, n_actions=T_MAX, cfg=cfg)
+    plain_t = PlainSAC(OBS_DIM + 1, n_actions=T_MAX, cfg=cfg,
+                       target_entropy=cfg.target_entropy_fraction * math.log(T_MAX))
+    fast_d, plain_d, ratio_d = paired(timing, plain_t, random_batches(8, OBS_DIM + 1, True), rounds, k)
+    peak, flop = matmul_gflops(), update_gflop(actor, batches[0])
+    return dict(sac_updates_per_s=fast_c, sac_plain_updates_per_s=plain_c, sac_ratio=ratio_c,
+                timing_updates_per_s=fast_d, timing_plain_updates_per_s=plain_d, timing_ratio=ratio_d,
+                matmul_gflops=peak, sac_gflop_per_update=flop, sac_ceiling_updates_per_s=peak / flop)
+
+
+# ---- (b) environment, (c) planner ---------------------------------------------------------
+
+def env_section(scenario, rounds, k, seed=1) -> tuple[dict, list]:
+    """Alternating blocks of k full steps (the ego driven by the base planner) and k bare SUMO steps.
+
+    A bare block takes the ego out (its episode ends) and steps the same running simulation with
+    the humans spawning as before; the next full block puts a new ego in. Returns the numbers and
+    the planner's inputs met in the full blocks.
+    """
+    env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
+    sim, L = env.sim, env.cfg.length
+    env.reset(seed=seed)
+    full_t = bare_t = sumo_in_full = 0.0
+    full_n = bare_n = 0
+    full_veh, bare_veh, states = [], [], []
+    step_sumo = sim.simulationStep
+
+    def timed_sumo():  # SUMO's own step as called from inside env.step
+        nonlocal sumo_in_full
+        start = time.perf_counter()
+        step_sumo()
+        sumo_in_full += time.perf_counter() - start
+
+    for _ in range(100):  # warm-up: the ego is on its way, the game is being played
+        _, _, term, trunc, _ = env.step(env.base_action())
+        if term or trunc:
+            env.reset()
+    for _ in range(rounds):
+        sim.simulationStep = timed_sumo
+        try:
+            for _ in range(k):
+                states.append((env.s - L / 2, env.v, env.accel, env.task["s"], env.task["xy"], env.others.copy(),
+                               env.planner_cfg))
+                start = time.perf_counter()
+                _, _, term, trunc, _ = env.step(env.base_action())  # the full step, the planner included
+                full_t += time.perf_counter() - start
+                full_n += 1
+                full_veh.append(sim.vehicle.getIDCount())
+                if term or trunc:
+                    env.reset()
+        finally:
+            sim.simulationStep = step_sumo
+        env._end_episode()
+        for _ in range(k):
+            env._spawn_humans()
+            start = time.perf_counter()
+            sim.simulationStep()
+            bare_t += time.perf_counter() - start
+            bare_n += 1
+            bare_veh.append(sim.vehicle.getIDCount())
+        env.reset()
+    env.close()
+    full_ms, bare_ms, sumo_ms = 1e3 * full_t / full_n, 1e3 * bare_t / bare_n, 1e3 * sumo_in_full / full_n
+    return dict(env_steps_per_s=1e3 / full_ms, sumo_raw_steps_per_s=1e3 / bare_ms, env_to_raw_ratio=bare_ms / full_ms,
+                env_ms=full_ms, sumo_in_env_ms=sumo_ms, own_ms=full_ms - sumo_ms,
+                vehicles_full=float(np.mean(full_veh)), vehicles_bare=float(np.mean(bare_veh))), states
+
+
+def planner_section(states, repeats) -> dict:
+    times = []
+    for _ in range(repeats):
+        for s in states:
+            start = time.perf_counter()
+            planner.base_action(*s)
+            times.append(time.perf_counter() - start)
+    ms = 1e3 * np.array(times)
+    return dict(planner_calls_per_s=1e3 / ms.mean(), planner_ms_mean=float(ms.mean()),
+                planner_ms_p99=float(np.percentile(ms, 99)), planner_ms_max=float(ms.max()),
+                planner_candidates=len(planner.lattice(states[0][-1]).te))
+
+
+# ---- (d) training ---------------------------------------------------------------------------
+
+def train_section(steps, warmup) -> dict:
+    """Steps/s of Trainer.run on the roundabout, with updates from the start (small N_start)."""
+    out = {}
+    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout"))
+    sac_cfg = SACConfig(learning_starts=256)
+    for phase, fraction in (("sac", 1.0), ("tarl", 0.0)):
+        tc = tarl.TrainConfig(steps=warmup, sac_fraction=fraction, timing_learning_starts=64,
+                              log_every=10**9, checkpoint_every=10**9)
+        trainer = tarl.Trainer(env, "tarl", tc, sac_cfg, log=lambda *a: None)
+        trainer.run()  # warm-up: buffers past N_start, updates running
+        trainer.tc = replace(tc, steps=warmup + steps)
+        start, updates = time.perf_counter(), dict(trainer.updates)
+        trainer.run()
+        elapsed = time.perf_counter() - start
+        out[phase] = steps / elapsed
+        out[phase + "_updates_per_step"] = sum(trainer.updates[k] - updates[k] for k in updates) / steps
+    env.close()
+    budget, share = 500_000, tarl.TrainConfig().sac_fraction  # Table 2's N_train; Alg. 1 step 1's share
+    hours = budget * (share / out["sac"] + (1 - share) / out["tarl"]) / 3600
+    return dict(train_steps_per_s=out["tarl"], train_sac_steps_per_s=out["sac"],
+                train_updates_per_step=out["tarl_updates_per_step"],
+                train_sac_updates_per_step=out["sac_updates_per_step"], paper_budget_hours=hours)
+
+
+# ---- report -----------------------------------------------------------------------------------
+
+def machine() -> str:
+    cpuinfo = Path("/proc/cpuinfo")
+    names = [line.split(":", 1)[1].strip() for line in (cpuinfo.read_text().splitlines() if cpuinfo.exists() else [])
+             if line.startswith("model name")]
+    cpu = names[0] if names else platform.processor() or platform.machine()
+    return (f"{cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} torch threads, torch {torch.__version__},"
+            f" Python {platform.python_version()}")
+
+
+def table(r) -> str:
+    s = [f"machine: {r['machine']}",
+         f"load average before: {r['load_before']}",
+         "",
+         "| what | this project | reference | ratio |",
+         "|---|---|---|---|",
+         f"| SAC update, actor (continuous) | {r['sac_updates_per_s']:.0f} /s | plain"
+         f" {r['sac_plain_updates_per_s']:.0f} /s | {r['sac_ratio']:.2f}x |",
+         f"| SAC update, timing taker (discrete) | {r['timing_updates_per_s']:.0f} /s | plain"
+         f" {r['timing_plain_updates_per_s']:.0f} /s | {r['timing_ratio']:.2f}x |",
+         f"| SAC ceiling: {r['sac_gflop_per_update']:.2f} GFLOP per update at {r['matmul_gflops']:.0f} GFLOP/s |"
+         f" {r['sac_ceiling_updates_per_s']:.0f} /s | | {r['sac_updates_per_s'] / r['sac_ceiling_updates_per_s']:.2f}"
+         " of it |"]
+    for sc in ("intersection", "roundabout"):
+        e = r["env"][sc]
+        s.append(f"| env step, {sc} ({e['vehicles_full']:.0f} vehicles; bare {e['vehicles_bare']:.0f}) |"
+                 f" {e['env_steps_per_s']:.0f} /s ({e['env_ms']:.2f} ms: SUMO {e['sumo_in_env_ms']:.2f},"
+                 f" own work {e['own_ms']:.2f}) | bare SUMO {e['sumo_raw_steps_per_s']:.0f} /s |"
+                 f" {e['env_to_raw_ratio']:.2f}x |")
+    s.append(f"| base planner, {r['planner_candidates']} candidates | {r['planner_calls_per_s']:.0f} calls/s"
+             f" ({r['planner_ms_mean']:.3f} ms mean, {r['planner_ms_p99']:.3f} ms p99) | | |")
+    s.append(f"| training, Alg. 1 step 1 ({r['train_sac_updates_per_step']:.2f} updates/step) |"
+             f" {r['train_sac_steps_per_s']:.0f} steps/s | | |")
+    s.append(f"| training, imagination + actor ({r['train_updates_per_step']:.2f} updates/step) |"
+             f" {r['train_steps_per_s']:.0f} steps/s | | |")
+    s.append(f"| the paper's 5x10^5 steps (40 % step 1), extrapolated | {r['paper_budget_hours']:.2f} h | | |")
+    return "\n".join(s)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions: a smoke test, noisier")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads (the machine has 2 cores)")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    rounds, k = (2, 5) if args.quick else (10, 60)
+    log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
+    r = dict(machine=machine(), load_before=round(os.getloadavg()[0], 2))
+    log("(a) SAC updates ...")
+    r.update(sac_section(rounds, k))
+    log("(b) environment steps ...")
+    r["env"], states = {}, []
+    for sc in ("intersection", "roundabout"):
+        r["env"][sc], met = env_section(sc, 1 if args.quick else 4, 40 if args.quick else 250)
+        states += met
+    for key in ("env_steps_per_s", "sumo_raw_steps_per_s"):
+        r[key] = {sc: r["env"][sc][key] for sc in r["env"]}
+    log("(c) base planner ...")
+    r.update(planner_section(states, 1 if args.quick else 3))
+    log("(d) training steps ...")
+    r.update(train_section(*((30, 280) if args.quick else (1500, 800))))
+    print(json.dumps(r, indent=1) if args.json else table(r))
+
+
+if __name__ == "__main__":
+    main()
