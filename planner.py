@@ -346,7 +346,8 @@ class Occupancy(NamedTuple):
 
 
 def _window(x0: np.ndarray, rate: np.ndarray, low: ArrayLike, high: ArrayLike):
-    """The times t at which low < x0 + rate t < high, as (start, end) arrays; rate != 0."""
+    """The times t at which low < x0 + rate t < high, as (start, end) arrays."""
+    rate = np.where(np.abs(rate) < 1e-9, 1e-9, rate)  # no motion: a window of all or no time
     t_low, t_high = (low - x0) / rate, (high - x0) / rate
     return np.minimum(t_low, t_high), np.maximum(t_low, t_high)
 
@@ -383,11 +384,8 @@ def path_occupancy(prediction: Prediction, path: PathSegments, cfg: PlannerConfi
     cos_rel, sin_rel = np.abs(heading.real), np.abs(heading.imag)
     half_along = L / 2 * cos_rel + W / 2 * sin_rel
     band = W / 2 + cfg.lateral_margin + (L / 2 * sin_rel + W / 2 * cos_rel)  # [m]
-    # No motion along or across: a rate of 1e-9 m/s, so a window of all or no time.
-    rate = velocity.view(np.float64)  # (2 Q',) along, across, along, ...
-    rate = np.where(np.abs(rate) < 1e-9, 1e-9, rate).view(np.complex128)
-    t_in_across, t_out_across = _window(position.imag, rate.imag, -band, band)
-    t_in_along, t_out_along = _window(position.real, rate.real, -band * path.miter_start[segment],
+    t_in_across, t_out_across = _window(position.imag, velocity.imag, -band, band)
+    t_in_along, t_out_along = _window(position.real, velocity.real, -band * path.miter_start[segment],
                                       path.length[segment] + band * path.miter_end[segment])
     t_in = np.maximum(np.maximum(t_in_across, t_in_along), pred.t_from[piece])
     t_out = np.minimum(np.minimum(t_out_across, t_out_along), pred.t_to[piece])
