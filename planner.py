@@ -427,27 +427,6 @@ def on_path(others: np.ndarray, path: PathSegments, times: np.ndarray, cfg: Plan
                   occ.s_rate[window], occ.half_along[window])
 
 
-_setups: dict = {}  # (id(cfg), id(path_s), id(path_xy)) -> (cfg, path_s, path_xy, lattice, segments)
-
-
-def _setup(cfg: PlannerConfig, path_s: ArrayLike, path_xy: ArrayLike) -> tuple[_Lattice, PathSegments]:
-    """The lattice of cfg and the segments of the path, found by the identity of the three
-    arguments: the environment passes the same objects at every step of an episode, and hashing
-    them by value (a config's 30 fields, a path's bytes) would cost microseconds every step. New
-    objects fall back on the caches by value (lattice, _cached_path_segments). A path's arrays
-    must not be modified in place once planned on (the environment never does)."""
-    key = (id(cfg), id(path_s), id(path_xy))
-    hit = _setups.get(key)
-    if hit is not None and hit[0] is cfg and hit[1] is path_s and hit[2] is path_xy:
-        return hit[3], hit[4]
-    if len(_setups) >= 16:  # a new path every episode: keep the cache small
-        _setups.clear()
-    s_bytes, xy_bytes = (np.asarray(path, dtype=float).tobytes() for path in (path_s, path_xy))
-    found = lattice(cfg), _cached_path_segments(s_bytes, xy_bytes)
-    _setups[key] = (cfg, path_s, path_xy, *found)  # the references keep the ids from being reused
-    return found
-
-
 def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np.ndarray,
                 others: np.ndarray, cfg: PlannerConfig = PlannerConfig()) -> tuple[float, str]:
     """a_base of Eq. (23) in [a_min, a_max] and the FSM's mode: "drive", "stop" or "brake".
@@ -459,7 +438,8 @@ def base_action(s0: float, v0: float, a0: float, path_s: np.ndarray, path_xy: np
     (M, 4) array without the yaw rate means yaw rate 0 (straight-line predictions).
     """
     s0, v0 = float(s0), float(v0)
-    lat, path = _setup(cfg, path_s, path_xy)
+    lat = lattice(cfg)
+    path = _cached_path_segments(*(np.asarray(p, dtype=float).tobytes() for p in (path_s, path_xy)))
     L = cfg.length
     # round-off in a0 must not make every candidate infeasible
     a0 = min(max(float(a0), cfg.a_min), cfg.a_max)

@@ -304,8 +304,8 @@ def test_vehicle_turning_onto_the_path_blocks_the_ego_but_its_tangent_would_not(
 # ---- implementation details: per-path cache, mixed predictions, first window per time -------
 
 def test_the_per_path_cache_follows_the_path_passed():
-    # base_action finds a path's segments by the identity of its arrays (the environment passes the
-    # same ones every step); another path, a copy of one, or lists must give what a fresh start gives.
+    # base_action finds a path's segments in a cache keyed by the path's values; another path, a copy
+    # of one, or lists must give what a fresh start gives.
     ring = ring_path(28.2)
     car = np.array([[40.0, -1.0, 0.0, 0.0], [0.0, -28.2, 0.0, 0.0]])  # stopped: one on each path
     calls = [(0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY), (10.0, 8.0, 0.0, *ring),
@@ -315,7 +315,6 @@ def test_the_per_path_cache_follows_the_path_passed():
     cached = [base_action(*call, car, CFG) for call in calls]
     fresh = []
     for call in calls:
-        planner._setups.clear()
         planner._cached_path_segments.cache_clear()
         planner.lattice.cache_clear()
         fresh.append(base_action(*call, car, CFG))
