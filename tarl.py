@@ -591,7 +591,7 @@ class DrivingEnv:
         self.waited = 0.0
         self._headings = {}
         self._read()
-        return self.obs, self._info(False, False, False)
+        return self.obs, self._info(False, False, False, 0.0)
 
     def step(self, action):
         """Eq. (1): s_{t+1} = f(s_t, a_t, xi_t), one SUMO step with the ego's acceleration a_t."""
@@ -609,11 +609,12 @@ class DrivingEnv:
         collided = self._collided()
         arrived = not collided and self.s >= self.task["dest"]
         self.waited = self.waited + c.dt if self.v < 0.1 else 0.0
-        timeout = sim.simulation.getTime() - self.t_spawn >= c.time_limit - 1e-9
+        t = sim.simulation.getTime() - self.t_spawn  # [s] since spawn
+        timeout = t >= c.time_limit - 1e-9
         terminated = collided or arrived
         truncated = timeout and not terminated
         r = reward(arrived, collided, self.v, c.v_min, c.v_max)
-        info = self._info(collided, arrived, truncated)
+        info = self._info(collided, arrived, truncated, t)
         if terminated or truncated:
             self._end_episode()
         else:
@@ -628,8 +629,7 @@ class DrivingEnv:
                                                self.task["xy"], self.others, self.planner_cfg)[0]
         return self._a_base
 
-    def _info(self, collided, arrived, timeout):
-        t = self.sim.simulation.getTime() - self.t_spawn
+    def _info(self, collided, arrived, timeout, t):
         return dict(collision=collided, arrival=arrived, timeout=timeout, time=t,
                     crossing_time=t if arrived else None, cost=float(collided),
                     task=self.cfg.sc.tasks[self.task["task"]])
