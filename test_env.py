@@ -1,16 +1,18 @@
 """The environment on the real simulator (libsumo): the ego's dynamics, collisions, the game in SUMO."""
 import math
+import tempfile
 
+import numpy as np
 import pytest
 
-import tarl
-from tarl import EnvConfig
+import world
+from world import EnvConfig
 
 
 @pytest.fixture(scope="module")
 def empty_env():
     """The intersection with no humans: the ego alone, or with vehicles a test places itself."""
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection", spawn_gap=math.inf, warmup=0.0))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection", spawn_gap=math.inf, warmup=0.0))
     yield env
     env.close()
 
@@ -81,7 +83,7 @@ def test_observation_sees_a_vehicle_ahead(empty_env):
 
 def test_level_k_yield_is_enforced_in_sumo():
     """Busy traffic: every human the game tells to yield is held, and released when the game ends."""
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     try:
         env.reset(seed=3)
         seen = 0
@@ -94,7 +96,7 @@ def test_level_k_yield_is_enforced_in_sumo():
             for h, k in env.decisions.items():
                 seen += 1
                 ignored = env.sim.vehicle.getParameter(h, "junctionModel.ignoreIDs")
-                assert ignored == ("ego" if k == tarl.CROSS else "")
+                assert ignored == ("ego" if k == world.CROSS else "")
         assert seen > 0  # games were played
     finally:
         env.close()
@@ -102,23 +104,69 @@ def test_level_k_yield_is_enforced_in_sumo():
 
 def test_unknown_scenario_is_refused():
     with pytest.raises(ValueError, match="unknown scenario"):
-        tarl.DrivingEnv(EnvConfig(scenario="highway"))
+        world.DrivingEnv(EnvConfig(scenario="highway"))
 
 
 def test_a_broken_network_is_one_line_not_a_traceback(tmp_path):
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     env.net_file = tmp_path / "broken.net.xml"
     env.net_file.write_text("<net><edge id=")
     with pytest.raises(SystemExit, match="SUMO cannot load broken.net.xml: .*scenarios/build.py"):
         env.reset(seed=0)
-    ok = tarl.DrivingEnv(EnvConfig(scenario="intersection", spawn_gap=math.inf, warmup=0.0))
+    ok = world.DrivingEnv(EnvConfig(scenario="intersection", spawn_gap=math.inf, warmup=0.0))
     ok.reset(seed=0)  # the next simulation starts normally
     ok.close()
 
 
-@pytest.mark.parametrize("argv", [["--scenario", "highway"], ["--algo", "ppo"], ["--eval-rounds", "0"],
-                                  ["--gui", "--algo", "tarl"]])
-def test_bad_command_lines_get_argparse_errors(argv):
-    with pytest.raises(SystemExit) as e:
-        tarl.parse_args(argv)
-    assert e.value.code == 2
+@pytest.mark.parametrize("action", [np.nan, None, [1.0, 2.0], [], np.inf, "fast"])
+def test_a_bad_action_is_refused(empty_env, action):
+    empty_env.reset(seed=0, options={"route": "S_N"})
+    with pytest.raises(ValueError, match="one finite acceleration"):
+        empty_env.step(action)
+
+
+def test_a_yielding_human_stops_before_the_conflict_point(monkeypatch):
+    """Every human in a game is told to YIELD; the ego stops before the roundabout's entry, ~14 m from its
+    merge. Humans on the ring have the right of way and never stop for an entry on their own (without the
+    speed caps none stops here): those that stop were held.
+    A human told to yield when it can no longer stop within its own braking (decel) is left out."""
+    monkeypatch.setattr(world, "level_k_decisions", lambda t_h, *args: np.full(len(t_h), world.YIELD))
+    env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
+    margin, could_stop, stopped_at = env.cfg.stop_margin, {}, {}
+    try:
+        env.reset(seed=2, options={"route": "S_N"})
+        for _ in range(200):
+            obs, r, terminated, truncated, info = env.step(-3.0 if env.s > 50.0 or env.v == 0 else 0.0)
+            assert not (terminated or truncated)
+            foes = {}  # human -> (ego's, human's distance [m]) to the conflict point the game plays for
+            for h, d_e, d_h, *_ in env.sim.vehicle.getJunctionFoes(world.EGO, 60.0):
+                if env.decisions.get(h) == world.YIELD and d_e > 0 and d_h > 0 and d_e < foes.get(h, (np.inf,))[0]:
+                    foes[h] = (d_e, d_h)
+            for h, (_, d) in foes.items():
+                v = env.sim.vehicle.getSpeed(h)
+                could_stop.setdefault(h, v * v / (2 * max(d - margin, 1e-9)) <= env.humans[h][5])
+                if v < 0.1 and could_stop[h] and d < 20.0:  # near its conflict point: not queued far away
+                    stopped_at[h] = min(d, stopped_at.get(h, np.inf))
+        assert len(stopped_at) >= 2  # held by the game
+        assert min(stopped_at.values()) > margin  # before the conflict point and its junction
+    finally:
+        env.close()
+
+
+def test_two_drivers_meet_the_same_test_cases():
+    """Case c of a round is the same traffic, departures and ego route for every model (Table 3)."""
+    import tarl
+    env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
+    try:
+        planner_only = tarl.play_round(env, tarl.Driver("planner"), cases=4, seed=0, round_=0)
+        full_throttle = tarl.Driver("none", type("Throttle", (), {"act": lambda self, obs, det: np.array([2.0])})())
+        reckless = tarl.play_round(env, full_throttle, cases=4, seed=0, round_=0)
+        with tempfile.TemporaryDirectory() as folder:  # a case played alone, after others: the same episode
+            cases = env.record_cases(tarl.test_seed(0, 0), 4, folder)
+            alone = tarl.rollout(env, tarl.Driver("planner"), {"case": cases[2]})
+    finally:
+        env.close()
+    assert [alone[k] for k in ("start", "outcome", "steps")] == [planner_only[2][k] for k in ("start", "outcome", "steps")]
+    assert [ep["start"] for ep in planner_only] == [ep["start"] for ep in reckless]
+    assert len({ep["start"] for ep in planner_only}) == 4  # four different cases
+    assert [ep["steps"] for ep in planner_only] != [ep["steps"] for ep in reckless]  # the drivers differ

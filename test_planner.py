@@ -1,15 +1,22 @@
-"""Tests of planner.py: the quintic of Eqs. (18)-(19), IDM, the predictions at constant speed
-and yaw rate, and the base planner's behaviour."""
+"""Tests of planner.py: the quintic of Eqs. (18)-(19), IDM, the cost, the FSM and Eqs. (22)-(23),
+the predictions at constant speed and yaw rate, and the base planner's behaviour."""
 import numpy as np
 import pytest
 
 import planner
 from planner import PlannerConfig, base_action, idm_acceleration, quintic_coefficients
 
-CFG = PlannerConfig()
+
+def config(**changes) -> PlannerConfig:
+    """A planner config with the environment's values (tarl.EnvConfig) for the required fields."""
+    return PlannerConfig(dt=0.2, a_min=-3.0, a_max=2.0, length=5.0, width=2.0, **changes)
+
+
+CFG = config()
 STRAIGHT_S = np.array([0.0, 500.0])  # [m] a straight path along +x from the origin
 STRAIGHT_XY = np.array([[0.0, 0.0], [500.0, 0.0]])  # [m]
 NOBODY = np.zeros((0, 4))
+TIMES = planner.lattice(CFG).times  # the grid t_k = k dt [s]
 
 
 def quintic_at(c, t, derivative=0):
@@ -29,6 +36,20 @@ def drive(s, v, others_at, seconds, path=(STRAIGHT_S, STRAIGHT_XY)):
         a = (v_new - v) / CFG.dt  # the realised acceleration, as the environment passes it
         s, v = s + v_new * CFG.dt, v_new
         yield (n + 1) * CFG.dt, s, v, a_base, mode
+
+
+def on_path_of(others, path=(STRAIGHT_S, STRAIGHT_XY), segments=None):
+    """on_path of `others` at the grid times, as an array (3, M, K): s, s_rate, half_along."""
+    segments = planner.path_segments(*path) if segments is None else segments
+    return np.array(planner.on_path(others, segments, TIMES, CFG))
+
+
+def test_the_ego_limits_and_size_must_come_from_the_environment():
+    with pytest.raises(TypeError):
+        PlannerConfig(dt=0.2)  # a_min, a_max, length and width have no default
+    with pytest.raises(TypeError):
+        PlannerConfig(0.2, -3.0, 2.0, 5.0, 2.0)  # keywords only
+    assert CFG.v_target == 10.0 and CFG.K1 == 1000.0  # the planner's own constants keep theirs
 
 
 # ---- Eqs. (18)-(19): the quintic --------------------------------------------------------
@@ -64,10 +85,10 @@ def test_batched_solve_equals_one_by_one_and_broadcasts():
 
 
 def test_lattice_unit_responses_equal_the_full_solve():
-    """base_action combines three precomputed responses; they must equal solving Eq. (19) anew."""
+    """plan() combines three precomputed responses; they must equal solving Eq. (19) anew."""
     lattice = planner.lattice(CFG)
     v0, a0 = 7.3, -1.2
-    combined = lattice.fixed + v0 * lattice.per_v0 + a0 * lattice.per_a0
+    combined = np.tensordot((1.0, v0, a0), lattice.responses, axes=1)
     np.testing.assert_allclose(combined, lattice.trajectories(v0, a0), atol=1e-9)
     # Each candidate starts at (0, v0, a0) and, after t_e, keeps v_e at zero acceleration.
     np.testing.assert_allclose(combined[:3, 0], np.array([[0.0], [v0], [a0]]) + 0 * lattice.te, atol=1e-12)
@@ -76,7 +97,7 @@ def test_lattice_unit_responses_equal_the_full_solve():
     np.testing.assert_allclose(combined[2, last], 0.0, atol=1e-12)
 
 
-# ---- IDM ---------------------------------------------------------------------------------
+# ---- IDM, Eqs. (20)-(23) and the FSM, each on its own ------------------------------------------
 
 def test_idm_by_hand():
     params = dict(a_max=2.0, b=2.0, s0=2.0, time_headway=1.5)
@@ -89,20 +110,68 @@ def test_idm_by_hand():
     np.testing.assert_allclose(both, [2.0, expected])
 
 
+def test_lattice_cost_adds_the_five_weighted_terms_of_eq20():
+    lattice = planner.lattice(CFG)
+    C, K = len(lattice.te), len(lattice.times)
+    calm = planner.lattice_cost(np.zeros(C), np.zeros((K, C)), lattice, CFG)
+    np.testing.assert_allclose(calm, CFG.K2 * np.abs(lattice.ve - np.where(lattice.ve > 0, CFG.v_target, 0.0))
+                               + CFG.K3 * lattice.te)  # phi_v + phi_t (phi_d = 0)
+    assert calm[lattice.drive_ids][-1] == pytest.approx(CFG.K3 * 8.0)  # at v_hat after 8 s: phi_t only
+    phi_coll = np.zeros(C)
+    phi_coll[3] = 1.0
+    jerk = np.full((K, C), -0.5)  # [m/s^3]: phi_jerk = sum |l'''| dt = 0.5 K dt
+    cost = planner.lattice_cost(phi_coll, jerk, lattice, CFG)
+    np.testing.assert_allclose(cost - calm, CFG.K1 * phi_coll + CFG.K5 * 0.5 * K * CFG.dt)
+
+
+def test_state_machine_picks_drive_then_stop_then_brake():
+    drive_ids, stop_ids, K1 = slice(0, 3), slice(3, 5), 1000.0
+    fsm = planner.state_machine
+    # the cheapest drive candidate if it is collision-free, even when a stop one is cheaper
+    assert fsm(np.array([5.0, 2.0, 1003.0, 0.5, 1.0]), drive_ids, stop_ids, K1) == ("drive", 1)
+    # every drive candidate collides or is infeasible: the cheapest stop one
+    assert fsm(np.array([1001.0, np.inf, 1002.0, 1004.0, 3.0]), drive_ids, stop_ids, K1) == ("stop", 4)
+    # nothing collision-free (or nothing feasible): brake
+    assert fsm(np.array([1001.0, 1000.0, np.inf, 1004.0, np.inf]), drive_ids, stop_ids, K1) == ("brake", None)
+    assert fsm(np.full(5, np.inf), drive_ids, stop_ids, K1) == ("brake", None)
+
+
+def test_base_acceleration_is_the_min_of_eq23_with_the_sign_of_eq22():
+    assert planner.base_acceleration(1.2, 0.7, CFG) == pytest.approx(0.7)  # IDM caps
+    assert planner.base_acceleration(0.4, 1.5, CFG) == pytest.approx(0.4)  # the lattice's a_t1
+    assert planner.base_acceleration(-1.3, 1.5, CFG) == pytest.approx(-1.3)  # Eq. (22) can brake
+    assert planner.base_acceleration(-2.0, -9.0, CFG) == CFG.a_min  # within the ego's limits
+    assert planner.base_acceleration(5.0, np.inf, CFG) == CFG.a_max
+
+
+def test_collision_term_and_leader_on_hand_made_predictions():
+    K = len(TIMES)
+    # vehicle 0 stands 30 m ahead of the ego's centre (s0 = 10 m); vehicle 1 follows 8 m behind
+    # at the ego's speed; vehicle 2 is not on the path.
+    s = np.array([np.full(K, 40.0), 2.0 + 8.0 * TIMES, np.full(K, np.nan)])
+    seen = planner.OnPath(s, np.array([np.zeros(K), np.full(K, 8.0), np.full(K, np.nan)]),
+                          np.where(np.isnan(s), np.nan, 2.5))
+    positions = np.stack([8.0 * TIMES, np.minimum(8.0 * TIMES, 20.0), 1.0 * TIMES], axis=1)  # (K, 3) past s0
+    # 30 m ahead with reach 2.5 + 2.5 + 1 = 6 m: the first candidate gets there, the others stop short;
+    # the follower, though the third candidate falls back into it, blocks nothing.
+    np.testing.assert_array_equal(planner.collision_term(positions, seen, 10.0, CFG), [1.0, 0.0, 0.0])
+    assert planner.leader(seen, 10.0, 8.0, CFG) == pytest.approx((30.0 - 2.5 - 2.5, 8.0))
+    nobody = planner.OnPath(*np.full((3, 0, K), np.nan))
+    assert planner.leader(nobody, 10.0, 8.0, CFG) == (np.inf, 0.0)
+    np.testing.assert_array_equal(planner.collision_term(positions, nobody, 10.0, CFG), [0.0, 0.0, 0.0])
+
+
 # ---- prediction against the path -----------------------------------------------------------
 
-def test_perpendicular_crosser_occupies_the_path_in_a_closed_form_window():
+def test_perpendicular_crosser_is_on_the_path_while_in_the_band():
     # 10 m/s northward, 40 m south of the path at x = 40: its 5 x 2 m box is within the band
     # |y| < 1 + 2.5 + 0.5 = 4 m from t = 3.6 s to 4.4 s, at s = 40 m, with 1 m of it along the path.
-    crosser = np.array([[40.0, -40.0, 10.0, np.pi / 2]])
-    path = planner.path_segments(STRAIGHT_S, STRAIGHT_XY)
-    occ = planner.path_occupancy(planner.predict(crosser, CFG), path, CFG)
-    assert len(occ.t_in) == 1  # one window: on the path's one segment (between the extensions)
-    assert occ.piece[0] == 0 and path.s_start[occ.segment[0]] == pytest.approx(0.0)
-    np.testing.assert_allclose([occ.t_in[0], occ.t_out[0]], [3.6, 4.4])
-    assert occ.s_start[0] == pytest.approx(40.0)
-    assert occ.s_rate[0] == pytest.approx(0.0, abs=1e-9)
-    assert occ.half_along[0] == pytest.approx(1.0)
+    s, s_rate, half_along = on_path_of(np.array([[40.0, -40.0, 10.0, np.pi / 2]]))[:, 0]
+    on = ~np.isnan(s)
+    assert on[19:22].all() and not on[:18].any() and not on[23:].any()  # t = 3.8-4.2 s, not <= 3.4 or >= 4.6
+    np.testing.assert_allclose(s[on], 40.0)
+    np.testing.assert_allclose(s_rate[on], 0.0, atol=1e-9)
+    np.testing.assert_allclose(half_along[on], 1.0)
 
 
 # ---- the base planner ---------------------------------------------------------------------
@@ -142,6 +211,23 @@ def test_brakes_in_emergency_when_no_trajectory_is_free():
     assert base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, car, CFG) == (CFG.a_min, "brake")
 
 
+def test_plan_returns_the_chosen_trajectory_along_the_path():
+    empty = planner.plan(20.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
+    assert (empty.a_base, empty.mode) == base_action(20.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
+    np.testing.assert_allclose(empty.t, TIMES)
+    assert empty.s[0] == pytest.approx(20.0) and np.all(np.diff(empty.s) > 0)
+    # the plan's second point is where its first acceleration leads: s0 + v0 dt + a_t1 dt^2 / 2 + ...
+    assert empty.s[1] == pytest.approx(20.0 + 8.0 * CFG.dt + empty.a_base * CFG.dt**2 / 2, abs=0.01)
+    # behind a stopped car the plan stops short of it
+    stop = planner.plan(0.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, np.array([[30.0, 0.0, 0.0, 0.0]]), CFG)
+    assert stop.mode == "stop" and stop.s[-1] < 30.0 - CFG.length - CFG.longitudinal_margin
+    assert stop.s[-1] == pytest.approx(stop.s[-2])  # standing still at the end
+    # braking: a_min until standing still, 10^2 / (2 * 3) = 16.7 m further
+    brake = planner.plan(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, np.array([[9.0, 0.0, 0.0, 0.0]]), CFG)
+    assert brake.mode == "brake" and brake.s[1] == pytest.approx(10.0 * 0.2 - 1.5 * 0.04)
+    assert brake.s[-1] == pytest.approx(100.0 / 6.0)
+
+
 def test_crossing_vehicle_timed_to_meet_the_ego_slows_it_but_one_already_past_does_not():
     empty, _ = base_action(0.0, CFG.v_target, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)
     # At 10 m/s both reach (40, 0) in 4 s.
@@ -159,6 +245,9 @@ def test_followers_and_the_next_lane_do_not_slow_the_ego():
                        [40.0, 3.2, 8.0, 0.0],  # next lane, same direction
                        [60.0, 3.2, 10.0, np.pi]])  # next lane, oncoming
     assert base_action(20.0, 8.0, 0.0, STRAIGHT_S, STRAIGHT_XY, others, CFG) == pytest.approx(empty)
+    seen = on_path_of(others)
+    assert not np.isnan(seen[0, :2, 0]).any()  # the two followers are on the path (its extension too)
+    assert np.isnan(seen[0, 2:]).all()  # the next lane never is
 
 
 def test_follows_a_slower_leader_on_a_bend_at_a_safe_gap():
@@ -193,23 +282,14 @@ def on_ring(radius, angle, v, yaw_rate):
     return np.array([[radius * np.cos(angle), radius * np.sin(angle), v, angle + np.pi / 2, yaw_rate]])
 
 
-def positions(prediction, vehicle, t):
-    """The predicted centre (x + iy) of `vehicle` at times t, from its pieces."""
-    mine = np.flatnonzero(prediction.vehicle == vehicle)
-    holds = (prediction.t_from[mine] <= t[:, None]) & (t[:, None] <= prediction.t_to[mine])
-    piece = mine[np.argmax(holds, axis=1)]
-    return prediction.origin[piece] + prediction.speed[piece] * prediction.direction[piece] * t
-
-
 def test_zero_yaw_rate_is_the_straight_line_and_four_columns_mean_zero_yaw_rate():
     cars = np.array([[40.0, -40.0, 10.0, np.pi / 2], [30.0, 0.0, 0.0, 0.0], [5.0, 3.2, 12.0, 0.1]])
     for others in (cars, np.c_[cars, np.zeros(3)]):
-        prediction = planner.predict(others, CFG)
-        np.testing.assert_array_equal(prediction.vehicle, [0, 1, 2])  # one piece each, for all time
-        np.testing.assert_array_equal(prediction.origin, cars[:, 0] + 1j * cars[:, 1])
-        np.testing.assert_array_equal(prediction.speed, cars[:, 2])
-        np.testing.assert_array_equal(prediction.direction, np.exp(1j * cars[:, 3]))
-        assert np.all(prediction.t_from == -np.inf) and np.all(prediction.t_to == np.inf)
+        centre, heading = planner.predict(others, TIMES, CFG)
+        velocity = cars[:, 2] * np.exp(1j * cars[:, 3])  # [m/s]
+        straight = (cars[:, 0] + 1j * cars[:, 1])[:, None] + velocity[:, None] * TIMES
+        np.testing.assert_allclose(centre, straight, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(heading, np.exp(1j * cars[:, 3])[:, None] + 0 * TIMES, rtol=0, atol=1e-15)
     assert (base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, cars, CFG)
             == base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, np.c_[cars, np.zeros(3)], CFG))
 
@@ -219,44 +299,33 @@ def test_a_tiny_yaw_rate_predicts_the_straight_line():
     # (Not 40 m south at 10 m/s like the crossers above: there a candidate is exactly at
     # the collision distance, and a 1e-13 m difference decides.)
     crosser = np.array([[37.0, -37.5, 10.0, np.pi / 2, 1e-15]])
-    prediction = planner.predict(crosser, CFG)
     t = np.linspace(0.0, CFG.horizon, 9)
-    np.testing.assert_allclose(positions(prediction, 0, t), 37.0 - 37.5j + 10.0j * t, atol=1e-9)
+    np.testing.assert_allclose(planner.predict(crosser, t, CFG)[0][0], 37.0 - 37.5j + 10.0j * t, atol=1e-9)
     a_straight, _ = base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, crosser[:, :4], CFG)
     assert a_straight < base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, NOBODY, CFG)[0] - 0.5
     assert base_action(0.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, crosser, CFG)[0] == pytest.approx(a_straight)
 
 
 @pytest.mark.parametrize("yaw_sign", [1.0, -1.0])
-def test_chords_follow_the_circle_by_hand(yaw_sign):
+def test_a_vehicle_circling_at_radius_r_stays_on_its_circle_at_every_grid_time(yaw_sign):
     # 10 m/s at (25, 0) heading north, yaw rate +-0.4 rad/s: the circle of radius 25 m around the
-    # origin (counter-clockwise) or around (50, 0) (clockwise). Its 3.2 rad over 8 s take
-    # ceil(3.2 / 0.3) = 11 chords; each chord's ends are on the circle, its middle at most
-    # chord_sagitta inside.
+    # origin (counter-clockwise) or around (50, 0) (clockwise), 3.2 rad over the 8 s horizon.
     R, v = 25.0, 10.0
-    prediction = planner.predict(np.array([[R, 0.0, v, np.pi / 2, yaw_sign * v / R]]), CFG)
-    assert len(prediction.vehicle) == 11
-    np.testing.assert_allclose(prediction.t_from[0], 0.0)
-    np.testing.assert_allclose(prediction.t_to[-1], CFG.horizon)
-    centre = 0.0 if yaw_sign > 0 else 2 * R
-    start = 0.0 if yaw_sign > 0 else np.pi  # the vehicle's angle seen from the centre at t = 0
-    t = np.linspace(0.0, CFG.horizon, 801)
-    by_hand = centre + R * np.exp(1j * (start + yaw_sign * v / R * t))
-    ends = np.r_[prediction.t_from, prediction.t_to[-1]]
-    np.testing.assert_allclose(positions(prediction, 0, ends),
-                               centre + R * np.exp(1j * (start + yaw_sign * v / R * ends)), atol=1e-9)
-    distance = np.abs(positions(prediction, 0, t) - centre)
-    assert distance.max() < R + 1e-9 and distance.min() > R - CFG.chord_sagitta
-    assert np.abs(positions(prediction, 0, t) - by_hand).max() < 2 * CFG.chord_sagitta
+    centre, heading = planner.predict(np.array([[R, 0.0, v, np.pi / 2, yaw_sign * v / R]]), TIMES, CFG)
+    middle = 0.0 if yaw_sign > 0 else 2 * R  # of the circle
+    start = 0.0 if yaw_sign > 0 else np.pi  # the vehicle's angle seen from there at t = 0
+    angle = start + yaw_sign * v / R * TIMES  # by hand, at every grid time
+    np.testing.assert_allclose(np.abs(centre[0] - middle), R, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(centre[0], middle + R * np.exp(1j * angle), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(heading[0], np.exp(1j * (np.pi / 2 + yaw_sign * v / R * TIMES)), atol=1e-12)
 
 
 def test_yaw_rate_is_clamped_to_the_minimum_turn_radius():
     # 5 m/s with a measured 10 rad/s (a 0.5 m circle) is clamped to 1 rad/s: a 5 m circle.
-    prediction = planner.predict(np.array([[0.0, 0.0, 5.0, 0.0, 10.0]]), CFG)
-    t = np.linspace(0.0, CFG.horizon, 81)
-    distance = np.abs(positions(prediction, 0, t) - 5.0j)  # centre 5 m to the left
-    assert distance.max() < CFG.min_turn_radius + 1e-9
-    assert distance.min() > CFG.min_turn_radius - CFG.chord_sagitta
+    centre, _ = planner.predict(np.array([[0.0, 0.0, 5.0, 0.0, 10.0]]), TIMES, CFG)
+    np.testing.assert_allclose(np.abs(centre[0] - 5.0j), CFG.min_turn_radius, atol=1e-9)  # around (0, 5)
+    after_1_s = 5.0j + 5.0 * np.exp(1j * (1.0 - np.pi / 2))  # 1 rad round that circle
+    np.testing.assert_allclose(centre[0, 5], after_1_s, atol=1e-9)
 
 
 @pytest.mark.parametrize("phase", [-0.2, 0.0, 0.2])
@@ -275,19 +344,18 @@ def test_ring_vehicle_beside_the_ego_lane_does_not_block_but_its_tangent_does(ph
 
 @pytest.mark.parametrize("phase", [-0.2, 0.0, 0.2, 0.4])
 def test_ring_vehicle_in_the_next_lane_out_does_not_block(phase):
-    # The ego drives the inner circle, the vehicle circles 3.2 m outside it. A segment's band
-    # reaching a full band width past each end of the polyline (rather than closing the bend's
-    # outer side only) would put the vehicle in the band: the second half shows it.
-    path = ring_path(25.0)
+    # The ego drives the inner circle (a polyline of 4 m segments), the vehicle circles 3.2 m
+    # outside it. A segment's band reaching a full band width past each end (rather than closing
+    # the bend's outer side only) would put the vehicle in the band: the second half shows it.
+    path = ring_path(25.0, segment=4.0)
     s0, v = 20.0, 8.0
     vehicle = on_ring(25.0 + 3.2, -np.pi / 2 + s0 / 25.0 + phase, v, v / (25.0 + 3.2))
     assert base_action(s0, v, 0.0, *path, vehicle, CFG) == base_action(s0, v, 0.0, *path, NOBODY, CFG)
     segments = planner.path_segments(*path)
-    prediction = planner.predict(vehicle, CFG)
-    assert len(planner.path_occupancy(prediction, segments, CFG).piece) == 0
+    assert np.isnan(on_path_of(vehicle, segments=segments)).all()
     full_band = segments._replace(miter_start=np.ones_like(segments.miter_start),
                                   miter_end=np.ones_like(segments.miter_end))
-    assert len(planner.path_occupancy(prediction, full_band, CFG).piece) > 0
+    assert not np.isnan(on_path_of(vehicle, segments=full_band)).all()
 
 
 def test_vehicle_turning_onto_the_path_blocks_the_ego_but_its_tangent_would_not():
@@ -301,10 +369,10 @@ def test_vehicle_turning_onto_the_path_blocks_the_ego_but_its_tangent_would_not(
     assert base_action(8.0, 10.0, 0.0, STRAIGHT_S, STRAIGHT_XY, turner[:, :4], CFG)[0] == pytest.approx(empty)
 
 
-# ---- implementation details: per-path cache, mixed predictions, first window per time -------
+# ---- implementation details: per-path cache, mixed predictions, the band test ----------------
 
 def test_the_per_path_cache_follows_the_path_passed():
-    # base_action finds a path's segments in a cache keyed by the path's values; another path, a copy
+    # plan() finds a path's segments in a cache keyed by the path's values; another path, a copy
     # of one, or lists must give what a fresh start gives.
     ring = ring_path(28.2)
     car = np.array([[40.0, -1.0, 0.0, 0.0], [0.0, -28.2, 0.0, 0.0]])  # stopped: one on each path
@@ -326,33 +394,42 @@ def test_the_per_path_cache_follows_the_path_passed():
 def test_mixed_predictions_are_each_vehicles_own_in_row_order():
     cars = np.array([[40.0, -40.0, 10.0, np.pi / 2, 0.0], [25.0, 0.0, 10.0, np.pi / 2, 0.4],
                      [5.0, 3.2, 0.0, 0.1, 0.3], [0.0, 0.0, 5.0, 0.0, -10.0], [30.0, 0.0, 8.0, 1.0, 0.0]])
-    together = planner.predict(cars, CFG)
-    assert np.all(np.diff(together.vehicle) >= 0)
+    together = planner.predict(cars, TIMES, CFG)
     for i, car in enumerate(cars):
-        alone = planner.predict(car[None], CFG)
-        mine = together.vehicle == i
-        for field in ("origin", "speed", "direction", "t_from", "t_to"):
-            np.testing.assert_allclose(getattr(together, field)[mine], getattr(alone, field), rtol=0, atol=1e-12)
+        alone = planner.predict(car[None], TIMES, CFG)
+        for field_together, field_alone in zip(together, alone):
+            np.testing.assert_allclose(field_together[i], field_alone[0], rtol=0, atol=1e-12)
 
 
-def test_on_path_takes_each_vehicles_first_window_at_each_time():
-    # On a ring path of short segments, a ring vehicle's chords share their end times and the
-    # segments' bands overlap at the bends: several windows hold a time; the first one counts.
+def test_on_path_equals_the_band_test_of_every_vehicle_time_and_segment():
+    # A loop over vehicles, grid times and segments in order, each tested against the band, the
+    # first segment holding it taken: what on_path computes at once behind its cheap prefilters.
+    # On a ring of short segments the bands overlap at the bends, so many points are in two.
     path = planner.path_segments(*ring_path(25.0))
     others = np.vstack([on_ring(25.0, -1.2, 8.0, 8.0 / 25.0), on_ring(25.0, 0.3, 6.0, 6.0 / 25.0),
-                        [[-20.0, -30.0, 5.0, 0.3, 0.0]]])
-    times = planner.lattice(CFG).times
-    seen = planner.on_path(others, path, times, CFG)
-    prediction = planner.predict(others, CFG)
-    occ = planner.path_occupancy(prediction, path, CFG)
-    expected, holding = {}, 0
-    for w in range(len(occ.piece)):  # windows in order: the first to claim (vehicle, k) keeps it
-        for k, t in enumerate(times):
-            if occ.t_in[w] <= t <= occ.t_out[w]:
-                holding += 1
-                expected.setdefault((prediction.vehicle[occ.piece[w]], k), occ.s_start[w] + occ.s_rate[w] * t)
-    assert len(seen.k) == len(expected) > 0
-    assert holding > len(expected) + 10  # many times held by two windows
-    for v, k, s in zip(seen.vehicle, seen.k, seen.s):
-        assert s == expected[(v, k)]
-    assert list(zip(seen.vehicle, seen.k)) == sorted(expected)  # vehicle by vehicle, then time
+                        on_ring(28.2, 0.1, 8.0, 8.0 / 28.2), [[-20.0, -30.0, 5.0, 0.3, 0.0]],
+                        [[90.0, 90.0, 3.0, 2.0, 0.0]]])
+    centre, heading = planner.predict(others, TIMES, CFG)
+    L, W = CFG.length, CFG.width
+    expected, in_two = np.full((3, len(others), len(TIMES)), np.nan), 0
+    for m in range(len(others)):
+        for k in range(len(TIMES)):
+            holding = []
+            for j in range(len(path.start)):  # in the segment's frame: along the path, to the left
+                position = (centre[m, k] - path.start[j]) * path.to_segment[j]
+                direction = heading[m, k] * path.to_segment[j]
+                cos, sin = abs(direction.real), abs(direction.imag)
+                band = W / 2 + CFG.lateral_margin + L / 2 * sin + W / 2 * cos
+                if (abs(position.imag) <= band and -band * path.miter_start[j] <= position.real
+                        <= path.length[j] + band * path.miter_end[j]):
+                    holding.append((path.s_start[j] + position.real, others[m, 2] * direction.real,
+                                    L / 2 * cos + W / 2 * sin))
+            in_two += len(holding) > 1
+            if holding:
+                expected[:, m, k] = holding[0]
+    seen = on_path_of(others, segments=path)
+    np.testing.assert_array_equal(np.isnan(seen), np.isnan(expected))
+    np.testing.assert_allclose(seen, expected, rtol=0, atol=1e-9)
+    assert (~np.isnan(expected[0])).sum() > 60 and in_two > 10  # many points on the path, many in two bands
+    assert np.isnan(expected[0, [2, 4]]).all() and (~np.isnan(expected[0, 3])).sum() > 30  # the next
+    # lane out and the far one never; the one by the path's start, along its extension, mostly

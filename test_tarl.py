@@ -1,151 +1,15 @@
-"""Tests of tarl.py: the paper's math by hand, and the environment on the real simulator."""
-import math
+"""Tests of tarl.py: the timing math by hand, Algorithm 1's buffers and blend on the real simulator."""
 
 import numpy as np
 import pytest
 
+import planner
 import tarl
-from tarl import CROSS, YIELD, EnvConfig
+from tarl import EnvConfig, SACConfig, TrainConfig
 
-CFG = EnvConfig()
-
-
-# ---- Eq. (28): sectors --------------------------------------------------------------------
-
-@pytest.mark.parametrize("phi, sector", [
-    (30.0, "front"), (-30.0, "right front"), (90.0, "left front"), (-90.0, "right rear"),
-    (150.0, "left rear"), (-150.0, "rear"), (180.0, "rear"), (0.0, "front"),
-    (30.000001, "left front"), (-29.999999, "front"), (150.000001, "rear"), (-150.000001, "rear"),
-])
-def test_sector_half_open_intervals(phi, sector):
-    assert tarl.SECTOR_NAMES[tarl.sector_index(phi)] == sector
-
-
-@pytest.mark.parametrize("deg", [-150, -90, -30, 30, 90, 150, 180])
-def test_vehicle_on_a_boundary_angle_lands_in_the_papers_sector(deg):
-    """A vehicle placed on each boundary angle, through observe(): (lo, hi] puts it in the lower sector."""
-    ego_heading = 0.7  # [rad] any heading: angles are relative to it
-    a = ego_heading + math.radians(deg)
-    other = np.array([[20.0 * math.cos(a), 20.0 * math.sin(a), 5.0, ego_heading]])
-    obs = tarl.observe(np.zeros(2), ego_heading, 3.0, 0, 0, other, CFG)
-    s_sur = obs[7:].reshape(6, 2, 5)
-    expected = {-150: "rear", -90: "right rear", -30: "right front", 30: "front",
-                90: "left front", 150: "left rear", 180: "rear"}[deg]
-    i = tarl.SECTOR_NAMES.index(expected)
-    assert s_sur[i, 0, 0] == 1.0 and s_sur[:, :, 0].sum() == 1.0
-    assert s_sur[i, 0, 1] == pytest.approx(20.0 / 60.0)
-    # on its sector's upper bound phi_high; 180 deg is the middle of the rear sector (150, 210]
-    assert s_sur[i, 0, 3] == pytest.approx(0.5 if deg == 180 else 1.0, abs=1e-6)
-    assert s_sur[i, 0, 4] == pytest.approx(0.5)  # same heading as the ego
-
-
-def test_observation_keeps_two_nearest_per_sector_and_ignores_far_vehicles():
-    others = np.array([[30.0, 0, 1, 0], [10.0, 0, 2, 0], [20.0, 0, 3, math.pi], [70.0, 0, 4, 0]])
-    obs = tarl.observe(np.zeros(2), 0.0, 8.0, 2, 1, others, CFG)
-    assert obs.shape == (tarl.OBS_DIM,)
-    np.testing.assert_array_equal(obs[:7], [0, 0, 1, 0, 1, 0, 8.0 / 16.0])
-    front = obs[7:].reshape(6, 2, 5)[0]
-    np.testing.assert_allclose(front[:, :3], [[1, 10 / 60, 2 / 16], [1, 20 / 60, 3 / 16]], rtol=1e-6)
-    assert front[1, 4] == pytest.approx(1.0)  # opposite heading: (pi + pi) / 2pi
-    assert obs[7:].reshape(6, 2, 5)[:, :, 0].sum() == 2  # the third and the one 70 m away are not seen
-
-
-# ---- Eq. (31): reward ---------------------------------------------------------------------
-
-def test_reward_cases():
-    assert tarl.reward(True, False, 9.0, 1.0, 10.0) == 20.0
-    assert tarl.reward(False, True, 9.0, 1.0, 10.0) == -20.0
-    assert tarl.reward(True, True, 9.0, 1.0, 10.0) == -20.0  # a collision is never an arrival
-    assert tarl.reward(False, False, 5.5, 1.0, 10.0) == pytest.approx(0.25)
-    assert tarl.reward(False, False, 14.0, 1.0, 10.0) == 0.5  # min(., 1)
-    assert tarl.reward(False, False, 0.0, 1.0, 10.0) == pytest.approx(-0.5 / 9.0)
-
-
-# ---- collision boxes --------------------------------------------------------------------
-
-def test_boxes_overlap_by_hand():
-    L, W = 5.0, 2.0
-    centers = np.array([[4.9, 0.0], [5.1, 0.0], [0.0, 1.9], [0.0, 2.1], [3.4, 0.0], [3.6, 0.0]])
-    headings = np.array([0.0, 0.0, 0.0, 0.0, math.pi / 2, math.pi / 2])
-    # end to end: 5 m apart touches; side by side: 2 m; T-bone: 2.5 + 1 = 3.5 m
-    np.testing.assert_array_equal(tarl.boxes_overlap(np.zeros(2), 0.0, centers, headings, L, W),
-                                  [True, False, True, False, True, False])
-
-
-# ---- Eqs. (24)-(26): the level-k game, worked by hand --------------------------------------
-
-A = np.array([[0.65, 0.125, 0.125, 0.125]])
-
-
-def decide(t_h, t_e, waited_h=0.0, decel_h=0.3, alpha=A, svo=0.0):
-    return tarl.level_k_decisions(np.array([t_h]), np.array([t_e]), np.array([decel_h]), np.array([0.3]),
-                                  np.array([waited_h]), 0.0, alpha, np.array([svo]), CFG)[0]
-
-
-def test_level_k_same_arrival_human_yields():
-    # level 0 (ego goes on): cross -> gap 0, U = 0; yield -> wait to 3.5 s: gap 1.5 s,
-    # U = .65 x .3 - .125 x .15 - .125 x .3 = .139 > 0: YIELD. Level 1 ego vs a yielding
-    # human: cross U = .195, yield (standoff) U = 0 - .125 - .0375: CROSS. Level 2 = level 0: YIELD.
-    assert decide(2.0, 2.0) == YIELD
-
-
-def test_level_k_human_well_ahead_crosses():
-    # human at 1 s, ego at 5 s: crossing keeps a 4 s gap (U = .52); yielding until 6.5 s
-    # gives a 1.5 s gap and 5.5 s of waiting (U = .089): CROSS at every level
-    assert decide(1.0, 5.0) == CROSS
-
-
-def test_level_k_human_that_cannot_stop_crosses():
-    assert decide(2.0, 2.0, decel_h=1.5) == CROSS
-
-
-def test_level_k_impatient_human_goes_after_waiting():
-    impatient = np.array([[0.5, 0.125, 0.125, 0.2]])
-    # no wait yet: yield U = .5 x .3 - .01875 - .0375 = .094 > cross U = 0: YIELD
-    assert decide(2.0, 2.0, waited_h=0.0, alpha=impatient) == YIELD
-    # 30 s waited: cross U = .2 x 1 = .2 > .094: CROSS
-    assert decide(2.0, 2.0, waited_h=30.0, alpha=impatient) == CROSS
-
-
-def test_level_k_is_vectorised():
-    d = tarl.level_k_decisions(np.array([2.0, 1.0, 2.0]), np.array([2.0, 5.0, 2.0]), np.array([0.3, 0.3, 1.5]),
-                               np.array([0.3] * 3), np.zeros(3), 0.0, np.repeat(A, 3, 0), np.zeros(3), CFG)
-    np.testing.assert_array_equal(d, [YIELD, CROSS, CROSS])
-
-
-
-def test_level_k_payoff_tables_equal_one_utility_per_choice():
-    """level_k_decisions evaluates Eq. (24) for all four choice pairs at once; here it is one pair at a
-    time, level by level as Sec. 5.1 reads, on random games (a third of them exact arrival ties)."""
-    rng = np.random.default_rng(0)
-    ego_w = tarl.EGO_GAME_WEIGHTS
-
-    def u(t_me, t_other, dec, waited, alpha, me, other):
-        return tarl.game_utility(alpha, *tarl.outcome_terms(t_me, t_other, dec, waited, me, other, CFG), CFG)
-
-    for trial in range(300):
-        M = int(rng.integers(1, 9))
-        t_h, t_e = rng.uniform(0.0, 12.0, M), rng.uniform(0.0, 12.0, M)
-        if trial % 3 == 0:
-            t_e = t_h.copy()
-        dec_h, dec_e = rng.uniform(0.0, 1.5, M), rng.uniform(0.0, 1.5, M)
-        w_h, w_e = rng.choice([0.0, 5.0, 40.0], M), float(rng.choice([0.0, 35.0]))
-        alpha, svo = rng.uniform([0.5, 0.05, 0.05, 0.05], [0.8, 0.2, 0.2, 0.2], (M, 4)), rng.uniform(0.0, 0.5, M)
-        c, y = np.full(M, CROSS), np.full(M, YIELD)
-        h0 = np.where(u(t_h, t_e, dec_h, w_h, alpha, y, c) > u(t_h, t_e, dec_h, w_h, alpha, c, c), YIELD, CROSS)
-        e1 = np.where(u(t_e, t_h, dec_e, w_e, ego_w, y, h0) > u(t_e, t_h, dec_e, w_e, ego_w, c, h0), YIELD, CROSS)
-
-        def u_svo(me):
-            return (1 - svo) * u(t_h, t_e, dec_h, w_h, alpha, me, e1) + svo * u(t_e, t_h, dec_e, w_e, ego_w, e1, me)
-
-        expected = np.where(dec_h > 1.0, CROSS, np.where(u_svo(y) > u_svo(c), YIELD, CROSS))
-        np.testing.assert_array_equal(tarl.level_k_decisions(t_h, t_e, dec_h, dec_e, w_h, w_e, alpha, svo, CFG),
-                                      expected)
-
-def test_arrival_time_by_hand():
-    # 20 m from 0 m/s at 2 m/s^2 below the cap: sqrt(2 x 20 / 2) = 4.47 s; from 10 m/s at the cap: 2 s
-    np.testing.assert_allclose(tarl.arrival_time(np.array([20.0, 20.0]), np.array([0.0, 10.0]), 2.0, 10.0),
-                               [math.sqrt(20.0), 2.0])
+SMALL_SAC = SACConfig(batch_size=32, buffer_size=5_000, learning_starts=50, hidden=32)
+SMALL = TrainConfig(steps=400, sac_fraction=0.3, n_timing=5, n_actor=15, timing_pretrain=0.05,
+                    timing_learning_starts=10, log_every=10**9, checkpoint_every=10**9)
 
 
 # ---- Eqs. (6), (7), (11), (12): timing ------------------------------------------------------
@@ -172,3 +36,97 @@ def test_blend_at_beta_one_and_zero():
     assert tarl.blend(1.5, -2.0, 1.0) == 1.5  # Eq. (12), beta = 1: the actor's action
     assert tarl.blend(1.5, -2.0, 0.0) == -2.0  # beta = 0: the base action
     assert tarl.blend(1.0, -1.0, tarl.beta(2)) == pytest.approx(0.0)
+
+
+def test_discounted_sum_is_eq_8_by_hand():
+    assert tarl.discounted_sum([1.0, 2.0, 3.0], 0.9) == pytest.approx(1.0 + 0.9 * 2.0 + 0.81 * 3.0)
+    assert tarl.discounted_sum([0.5], 0.99) == 0.5  # T = 1: the step reward itself
+
+
+def test_timing_input_carries_the_action_scaled():
+    x = tarl.timing_input(np.zeros(tarl.OBS_DIM, np.float32), np.array([2.0]), EnvConfig())
+    assert x.shape == (tarl.OBS_DIM + 1,) and x[-1] == 1.0
+    assert tarl.timing_input(np.zeros(tarl.OBS_DIM), np.array([-3.0]), EnvConfig())[-1] == -1.0
+
+
+def test_an_action_bound_changed_in_its_one_home_reaches_the_planner_the_actor_and_eq_5():
+    cfg = EnvConfig(scenario="intersection", a_min=-4.0, a_max=1.5)
+    env = tarl.DrivingEnv(cfg)
+    assert (env.action_space.low[0], env.action_space.high[0]) == (-4.0, 1.5)
+    assert (env.planner_cfg.a_min, env.planner_cfg.a_max) == (-4.0, 1.5)
+    trainer = tarl.Trainer(env, "tarl", SMALL, SMALL_SAC, log=lambda *a: None)
+    low = float(trainer.actor.action_bias - trainer.actor.action_scale)
+    high = float(trainer.actor.action_bias + trainer.actor.action_scale)
+    assert (low, high) == (-4.0, 1.5)
+    assert tarl.timing_input(np.zeros(tarl.OBS_DIM), np.array([-4.0]), cfg)[-1] == -1.0  # Eq. (5)
+    # the planner's emergency brake: a stopped car 1 m ahead of the ego at 10 m/s
+    path_s, path_xy = np.array([0.0, 200.0]), np.array([[0.0, 0.0], [200.0, 0.0]])
+    others = np.array([[56.0, 0.0, 0.0, 0.0, 0.0]])
+    assert planner.base_action(50.0, 10.0, 0.0, path_s, path_xy, others, env.planner_cfg)[0] == -4.0
+
+
+class Recorder:
+    """The environment, with every executed action, the base action before it and the reward recorded."""
+
+    def __init__(self, env):
+        self.env, self.steps = env, []
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def step(self, a_bar):
+        a_base = self.env.base_action()
+        out = self.env.step(a_bar)
+        self.steps.append((a_bar, a_base, out[1], out[2] or out[3]))
+        return out
+
+
+@pytest.fixture(scope="module")
+def trainer():
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    trainer = tarl.Trainer(Recorder(env), "tarl", SMALL, SMALL_SAC, seed=3, log=lambda *a: None)
+    trainer.obs, _ = trainer.env.reset(seed=3)
+    yield trainer
+    env.close()
+
+
+def test_the_real_loop_executes_eq_12_and_stores_the_actors_action_with_the_blended_reward(trainer):
+    proposals = []
+    act = trainer.driver.act
+    trainer.driver.act = lambda *args, **kw: proposals.append(act(*args, **kw)) or proposals[-1]
+    trainer.env.steps.clear()
+    start = len(trainer.D_a)
+    trainer.actor_loop(trainer.driver, "real")
+    del trainer.driver.act
+    assert len(proposals) == len(trainer.env.steps) == len(trainer.D_a) - start >= SMALL.n_actor
+    for i, ((a, T, b), (a_bar, a_base, r, _)) in enumerate(zip(proposals, trainer.env.steps)):
+        assert 1 <= T <= tarl.T_MAX and b == pytest.approx(float(tarl.beta(T)))
+        assert a_bar == pytest.approx(tarl.blend(a[0], a_base, tarl.beta(T)), abs=1e-12)  # Eq. (12)
+        # Alg. 1 line 21: a_t as the actor proposed it, with the reward of the executed a_bar_t
+        assert trainer.D_a.data["act"][start + i, 0] == pytest.approx(a[0])
+        assert trainer.D_a.data["rew"][start + i] == pytest.approx(r)
+        assert trainer.D_a.data["discount"][start + i] == pytest.approx(SMALL_SAC.gamma)
+
+
+def test_the_timing_buffer_holds_r_T_and_gamma_to_the_T(trainer):
+    timings = []
+    act = trainer.timing_taker.act
+    trainer.timing_taker.act = lambda *args, **kw: timings.append(act(*args, **kw)) or timings[-1]
+    trainer.env.steps.clear()
+    start = len(trainer.D_T)
+    trainer.imagination_loop()
+    del trainer.timing_taker.act
+    assert len(timings) == len(trainer.D_T) - start >= SMALL.n_timing
+    steps, gamma = iter(trainer.env.steps), SMALL_SAC.gamma
+    for i, T in enumerate(timings):
+        rewards = []
+        for dt in range(1, T + 1):
+            a_bar, a_base, r, done = next(steps)
+            rewards.append(r)
+            if done:
+                break
+        k = len(rewards)  # T, or fewer where the episode ended
+        assert trainer.D_T.data["act"][start + i] == T
+        assert trainer.D_T.data["rew"][start + i] == pytest.approx(sum(gamma**j * r for j, r in enumerate(rewards)))
+        assert trainer.D_T.data["discount"][start + i] == pytest.approx(gamma**k)  # Eq. (9): gamma^T
+    assert next(steps, None) is None

@@ -300,10 +300,10 @@ def train_section(steps, warmup) -> dict:
     out = {}
     env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout"))
     sac_cfg = SACConfig(learning_starts=256)
-    for phase, fraction in (("sac", 1.0), ("tarl", 0.0)):
-        tc = tarl.TrainConfig(steps=warmup, sac_fraction=fraction, timing_learning_starts=64,
+    for phase in ("sac", "tarl"):  # plain SAC = Alg. 1 step 1; TARL without its step 1: both loops
+        tc = tarl.TrainConfig(steps=warmup, sac_fraction=0.0, timing_pretrain=0.05, timing_learning_starts=64,
                               log_every=10**9, checkpoint_every=10**9)
-        trainer = tarl.Trainer(env, "tarl", tc, sac_cfg, log=lambda *a: None)
+        trainer = tarl.Trainer(env, phase, tc, sac_cfg, log=lambda *a: None)
         trainer.run()  # warm-up: buffers past N_start, updates running
         trainer.tc = replace(tc, steps=trainer.step + steps)
         start, step0, updates = time.perf_counter(), trainer.step, dict(trainer.updates)

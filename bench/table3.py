@@ -1,83 +1,177 @@
-"""Reproduce Table 3: train and evaluate every model on both scenarios, then write results/table3.md.
+"""Table 3 of the paper as a grid: every row x both scenarios x seeds, resumable cell by cell.
 
-    python bench/table3.py                       # default budget, 10 x 200 test cases
-    python bench/table3.py --steps 500000        # the paper's budget
-    python bench/table3.py --collect-only        # only rebuild the table from runs/ (or --runs DIR)
+    python bench/table3.py                    # run or resume the grid, 2 cells side by side
+    python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
+    python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
 
-`--algo tarl` trains TARL and reports TARL, SAC (its step-1 model) and Lattice-IDM on the same
-test seeds; `--algo sac-lattice` adds SAC-Lattice. Each run keeps its log, checkpoints and
-eval.json in RUNS/SCENARIO-ALGO-sSEED; the table is rebuilt from those eval.json files.
+A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
+checkpoints), evaluated on the fixed test cases of seed K. When it finishes, its eval.json and
+train_log.csv (and, for seed 0, its policy.pt) are copied to results/runs/S-A-sK and, with
+--commit, committed: an interruption loses at most the cells in progress, which resume from their
+checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
+The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
+beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value.
 """
 import argparse
 import json
+import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ("intersection", "roundabout")
-ROWS = ("tarl", "sac", "sac-lattice", "lattice-idm")
+ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
+ABLATIONS = ("tarl-fixed-t", "tarl-random-t")  # "What the timing adds" (README)
+NAMES = {"tarl": "TARL", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
+         "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO",
+         "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": "TARL, T random"}
 # Table 3 of the paper: success rate and crossing time [s], mean +- std over 10 rounds of 200 cases
-PAPER = {
-    ("intersection", "tarl"): (0.881, 0.021, 8.473, 0.145), ("roundabout", "tarl"): (0.912, 0.025, 16.066, 0.095),
-    ("intersection", "sac-lattice"): (0.808, 0.032, 8.509, 0.182), ("roundabout", "sac-lattice"): (0.868, 0.037, 16.371, 0.481),
-    ("intersection", "lattice-idm"): (0.896, 0.018, 11.349, 0.280), ("roundabout", "lattice-idm"): (0.797, 0.030, 27.293, 0.291),
-}
+PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.739, 0.039, 10.303, 0.515),
+                          "sac-lag": (0.828, 0.026, 9.230, 0.134), "sac-pid": (0.810, 0.028, 9.208, 0.133),
+                          "tarl": (0.881, 0.021, 8.473, 0.145), "sac-lattice": (0.808, 0.032, 8.509, 0.182),
+                          "lattice-idm": (0.896, 0.018, 11.349, 0.280)},
+         "roundabout": {"cpo": (0.838, 0.029, 15.437, 0.238), "ppo-lag": (0.797, 0.016, 15.366, 0.181),
+                        "sac-lag": (0.872, 0.040, 19.185, 0.334), "sac-pid": (0.907, 0.016, 19.324, 0.109),
+                        "tarl": (0.912, 0.025, 16.066, 0.095), "sac-lattice": (0.868, 0.037, 16.371, 0.481),
+                        "lattice-idm": (0.797, 0.030, 27.293, 0.291)}}
 
 
-def collect(runs: Path, seed: int) -> dict:
-    """(scenario, row) -> result dict, from every eval.json under `runs` for this seed."""
+def cells(algos, seeds):
+    """The grid, seed by seed, so that a first complete table comes early."""
+    return [(scenario, algo, seed) for seed in seeds for algo in algos for scenario in SCENARIOS]
+
+
+def command(scenario, algo, seed, args, jobs) -> list[str]:
+    """The cell's command, run from the repository's root (paths relative to it where they can be)."""
+    out = args.work / f"{scenario}-{algo}-s{seed}"
+    shown = out.relative_to(ROOT) if out.is_relative_to(ROOT) else out
+    cmd = ["python", "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--steps", str(args.steps),
+           "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", str(shown),
+           "--eval-rows", "trained", "--threads", str(2 // jobs or 1), "--workers", str(2 // jobs or 1)]
+    return cmd + ["--resume"] * (out / "ckpt.pt").exists()
+
+
+def publish(scenario, algo, seed, args):
+    """Copy a finished cell's small files to results/runs and commit them (--commit)."""
+    src, dst = args.work / f"{scenario}-{algo}-s{seed}", args.results / "runs" / f"{scenario}-{algo}-s{seed}"
+    dst.mkdir(parents=True, exist_ok=True)
+    for name in ("train_log.csv", "lambda_log.csv") + ("policy.pt",) * (seed == 0):
+        if (src / name).exists():
+            shutil.copy(src / name, dst / name)
+    shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
+    collect(args)
+    if args.commit:
+        for attempt in range(5):  # another git command may hold the index for a moment
+            add = subprocess.run(["git", "-C", str(ROOT), "add", str(dst), str(args.results / "table3.md")])
+            done = add.returncode == 0 and subprocess.run(
+                ["git", "-C", str(ROOT), "commit", "-q", "-m", f"Table 3 grid: {algo} on the {scenario}, seed {seed}",
+                 "--", str(dst), str(args.results / "table3.md")]).returncode == 0
+            if done:
+                break
+            time.sleep(5)
+
+
+def run_grid(todo, args):
+    """Run the cells, `--jobs` at a time; each one's output goes to its own log.txt."""
+    running = {}
+    while todo or running:
+        while todo and len(running) < args.jobs:
+            cell = todo.pop(0)
+            out = args.work / "{}-{}-s{}".format(*cell)
+            out.mkdir(parents=True, exist_ok=True)
+            log = open(out / "log.txt", "a")
+            running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.jobs)[1:]], stdout=log, stderr=subprocess.STDOUT,
+                                              cwd=ROOT), log, time.time())
+            print(f"started {' '.join(map(str, cell))} ({len(todo)} waiting)", flush=True)
+        time.sleep(5)
+        for cell, (proc, log, t0) in list(running.items()):
+            if proc.poll() is not None:
+                log.close()
+                del running[cell]
+                print(f"{'finished' if proc.returncode == 0 else 'FAILED'} {' '.join(map(str, cell))} in "
+                      f"{(time.time() - t0) / 60:.1f} min", flush=True)
+                if proc.returncode == 0:
+                    publish(*cell, args)
+
+
+def load(results: Path) -> dict:
+    """(scenario, algo) -> {seed: the row of eval.json}."""
     found = {}
-    for scenario in SCENARIOS:
-        for algo in ("tarl", "sac-lattice"):
-            path = runs / f"{scenario}-{algo}-s{seed}" / "eval.json"
-            if path.exists():
-                for row in json.loads(path.read_text())["table"]:
-                    found.setdefault((scenario, row["algo"]), row)
+    for path in sorted((results / "runs").glob("*/eval.json")):
+        data = json.loads(path.read_text())
+        for row in data["rows"]:
+            found.setdefault((data["scenario"], row["algo"]), {})[data["seed"]] = row
     return found
 
 
-def fmt(mean, std, digits):
-    return "-" if mean is None else f"{mean:.{digits}f} +- {std:.{digits}f}"
+def over_seeds(rows: dict, key: str):
+    """(mean over seeds of the seed means, their std, mean of the per-round std, seeds with a value)."""
+    means = [r[key]["mean"] for r in rows.values() if r[key]["mean"] is not None]
+    stds = [r[key]["std"] for r in rows.values() if r[key]["mean"] is not None]
+    return (float(np.mean(means)), float(np.std(means)), float(np.mean(stds)), len(means)) if means else None
 
 
-def markdown(found: dict) -> str:
-    lines = ["| model | intersection success | crossing [s] | roundabout success | crossing [s] |",
-             "|---|---|---|---|---|"]
-    for row in ROWS:
-        cells = []
-        for scenario in SCENARIOS:
-            r = found.get((scenario, row))
-            cells += [fmt(r["success_rate"]["mean"], r["success_rate"]["std"], 3), fmt(r["crossing_time"]["mean"], r["crossing_time"]["std"], 2)] if r else ["not run", ""]
-        budget = sorted({f"{r['rounds']} x {r['cases']}" for (s, name), r in found.items() if name == row})
-        lines.append(f"| {row} (this code, {', '.join(budget) or '-'}) | " + " | ".join(cells) + " |")
-        if any((s, row) in PAPER for s in SCENARIOS):
-            paper = []
-            for scenario in SCENARIOS:
-                p = PAPER.get((scenario, row))
-                paper += [f"{p[0]:.3f} +- {p[1]:.3f}", f"{p[2]:.2f} +- {p[3]:.2f}"] if p else ["", ""]
-            lines.append(f"| {row} (paper) | " + " | ".join(paper) + " |")
-    return "\n".join(lines)
+def cell_text(stats, digits):
+    if stats is None:
+        return "-"
+    mean, seed_std, round_std, n = stats
+    return f"{mean:.{digits}f} +- {seed_std:.{digits}f} ({round_std:.{digits}f}, {n})"
+
+
+def collect(args):
+    """Rebuild results/table3.md from the eval.json files under results/runs."""
+    found = load(args.results)
+    lines = ["# Table 3, reproduced", "",
+             f"Each cell: mean +- std over seeds of each seed's mean over {args.rounds} rounds x {args.cases} test cases; "
+             "in brackets the mean per-round std (the paper's +-) and the number of seeds. Paper: Table 3 "
+             f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from results/runs/*/eval.json.", ""]
+    for scenario in SCENARIOS:
+        lines += [f"## {scenario}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
+                  "at 60 s [s] | paper success | paper crossing [s] |", "|---|---|---|---|---|---|---|---|"]
+        for algo in ROWS + ABLATIONS:
+            rows = found.get((scenario, algo))
+            if not rows:
+                continue
+            paper = PAPER[scenario].get(algo)
+            steps = {r["train_steps"] for r in rows.values()}
+            lines.append(f"| {NAMES[algo]} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | "
+                         + " | ".join(cell_text(over_seeds(rows, k), 3) for k in ("success_rate", "collision_rate", "timeout_rate"))
+                         + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
+                         + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.2f} +- {paper[3]:.2f} |" if paper else " | - | - |"))
+        lines.append("")
+    (args.results / "table3.md").write_text("\n".join(lines))
+    return found
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--algos", nargs="+", default=list(ROWS + ABLATIONS), choices=ROWS + ABLATIONS)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--steps", type=int, default=100_000, help="training steps of every learned row")
+    p.add_argument("--rounds", type=int, default=10)
+    p.add_argument("--cases", type=int, default=200)
+    p.add_argument("--jobs", type=int, default=2, help="cells side by side (each with 2 // jobs torch threads)")
+    p.add_argument("--work", type=Path, default=ROOT / "runs" / "grid", help="the cells' run directories")
+    p.add_argument("--results", type=Path, default=ROOT / "results")
+    p.add_argument("--commit", action="store_true", help="git commit each finished cell's results")
+    p.add_argument("--print-commands", action="store_true", help="print one command per cell and exit")
+    p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md")
+    args = p.parse_args()
+    if args.collect_only:
+        collect(args)
+        return print((args.results / "table3.md").read_text())
+    todo = [c for c in cells(args.algos, args.seeds)
+            if not (args.results / "runs" / "{}-{}-s{}".format(*c) / "eval.json").exists()]
+    if args.print_commands:
+        return print("\n".join(" ".join(command(*c, args, 1)) for c in todo))
+    print(f"{len(todo)} cells to run, {args.jobs} at a time", flush=True)
+    run_grid(todo, args)
+    print((args.results / "table3.md").read_text())
 
 
 if __name__ == "__main__":
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--steps", type=int, help="training steps per model (default: tarl.py's)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--eval-rounds", type=int, default=10)
-    p.add_argument("--eval-cases", type=int, default=200)
-    p.add_argument("--runs", type=Path, default=ROOT / "runs")
-    p.add_argument("--collect-only", action="store_true")
-    a = p.parse_args()
-    if not a.collect_only:
-        for scenario in SCENARIOS:
-            for algo in ("tarl", "sac-lattice"):
-                cmd = [sys.executable, str(ROOT / "tarl.py"), "--scenario", scenario, "--algo", algo,
-                       "--seed", str(a.seed), "--eval-rounds", str(a.eval_rounds), "--eval-cases", str(a.eval_cases),
-                       "--out", str(a.runs / f"{scenario}-{algo}-s{a.seed}")] + (["--steps", str(a.steps)] if a.steps else [])
-                print("+", " ".join(cmd), flush=True)
-                subprocess.run(cmd, check=True)
-    table = markdown(collect(a.runs, a.seed))
-    (ROOT / "results").mkdir(exist_ok=True)
-    (ROOT / "results" / "table3.md").write_text(table + "\n")
-    print(table)
+    main()
