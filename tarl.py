@@ -375,6 +375,8 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
     [s] (None unless arrived) and the number of steps.
     """
     obs, _ = env.reset(options=options)
+    if options and "case" in options:  # tarl-random-t: the same timings wherever and whenever the case is played
+        driver.rng = np.random.default_rng(options["case"]["seed"])
     ep = {key: [] for key in ("a", "T", "beta", "a_base", "a_bar", "v") + ("ego", "others", "plan") * record}
     start, done = env.fingerprint(), False
     while not done:
@@ -675,7 +677,6 @@ def test_seed(seed: int, round_: int) -> int:
 def play_round(env: DrivingEnv, driver: Driver, cases: int, seed: int, round_: int) -> list[dict]:
     """One round of Table 3: its test cases (record_cases), each played by `driver` acting
     deterministically (the actor's mean, the most likely T). The rollout() of each, in order."""
-    driver.rng = np.random.default_rng(test_seed(seed, round_))  # tarl-random-t: the same T wherever played
     with tempfile.TemporaryDirectory() as folder:
         played = [rollout(env, driver, {"case": case}) for case in env.record_cases(test_seed(seed, round_), cases, folder)]
     return [dict(ep, round=round_, case=c) for c, ep in enumerate(played)]

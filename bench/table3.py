@@ -5,7 +5,8 @@
     python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
 
 A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
-checkpoints), evaluated on the fixed test cases of seed K. When it finishes, its eval.json and
+checkpoints), evaluated on the fixed test cases of seed K; TARL's cell is the default command, which
+also evaluates Lattice-IDM and TARL's step-1 model on the same cases. When it finishes, its eval.json and
 train_log.csv (and, for seed 0, its policy.pt) are copied to results/runs/S-A-sK and, with
 --commit, committed: an interruption loses at most the cells in progress, which resume from their
 checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
@@ -25,6 +26,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ("intersection", "roundabout")
 ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
+# TARL's cell is the default command: it evaluates Lattice-IDM (and TARL's step-1 model) on the same
+# cases, so Lattice-IDM has no cell of its own
+RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t")  # "What the timing adds" (README)
 NAMES = {"tarl": "TARL", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
          "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO",
@@ -51,7 +55,8 @@ def command(scenario, algo, seed, args, jobs) -> list[str]:
     shown = out.relative_to(ROOT) if out.is_relative_to(ROOT) else out
     cmd = ["python", "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--steps", str(args.steps),
            "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", str(shown),
-           "--eval-rows", "trained", "--threads", str(2 // jobs or 1), "--workers", str(2 // jobs or 1)]
+           "--eval-rows", "all" if algo == "tarl" else "trained", "--threads", str(2 // jobs or 1),
+           "--workers", str(2 // jobs or 1)]
     return cmd + ["--resume"] * (out / "ckpt.pt").exists()
 
 
@@ -149,7 +154,7 @@ def collect(args):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--algos", nargs="+", default=list(ROWS + ABLATIONS), choices=ROWS + ABLATIONS)
+    p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--steps", type=int, default=100_000, help="training steps of every learned row")
     p.add_argument("--rounds", type=int, default=10)

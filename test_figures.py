@@ -1,0 +1,128 @@
+"""bench/figures.py on the real simulator: Fig. 6 of a test case replayed as the evaluation plays it, Fig. 5
+from a tiny train_log.csv, Sec. 5.5's table, and the one-line errors. Nothing is trained."""
+import json
+import sys
+from pathlib import Path
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
+import figures  # noqa: E402
+import tarl  # noqa: E402
+
+HEADER = "step,loop,episode_return,success,collision,timeout,crossing_time,mean_beta\n"
+
+
+def png_shape(path: Path):
+    image = matplotlib.image.imread(path)
+    assert image[..., :3].std() > 0.05, "a blank image"
+    return image.shape
+
+
+def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path):
+    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="intersection"))
+    small = tarl.TrainConfig(steps=100, log_every=10**9, checkpoint_every=10**9)
+    # Table 2's network sizes (make_trainer builds those), a small buffer; an untrained TARL
+    trainer = tarl.Trainer(env, "tarl", small, tarl.SACConfig(buffer_size=1000), out=tmp_path, log=lambda *a: None)
+    trainer.save()
+    assert (tmp_path / "ckpt.pt").is_file() and (tmp_path / "policy.pt").is_file()
+    expected = tarl.play_round(env, trainer.driver, 3, 0, 0)[2]  # the evaluation's case 2 of round 0
+    env.close()
+
+    out = tmp_path / "fig6.png"
+    ep = figures.main(["case", "--scenario", "intersection", "--algo", "tarl", "--load", str(tmp_path / "policy.pt"),
+                       "--seed", "0", "--round", "0", "--case", "2", "--cases", "3", "--out", str(out)])
+    assert png_shape(out)[:2] == (1430, 2210)
+    # the same test case, played as the evaluation played it
+    assert (ep["start"], ep["outcome"], ep["steps"]) == (expected["start"], expected["outcome"], expected["steps"])
+    np.testing.assert_array_equal(ep["a_bar"], expected["a_bar"])
+    n = ep["steps"]
+    # the record: Eq. (11) and Eq. (12) at every step, a timing in 1..T_max, one frame per decision and the last state
+    assert np.all((ep["T"] >= 1) & (ep["T"] <= tarl.T_MAX))
+    np.testing.assert_allclose(ep["beta"], tarl.beta(ep["T"]))
+    np.testing.assert_allclose(ep["a_bar"], tarl.blend(ep["a"], ep["a_base"], ep["beta"]), atol=1e-12)
+    assert len(ep["frames"]) == len(ep["ego"]) == len(ep["plan"]) == n + 1
+    # the scene holds every vehicle: among them, the rollout's (those within d_max of the ego)
+    for k in range(n):
+        seen, every = ep["others"][k], ep["frames"][k]["vehicles"]
+        assert all(np.abs(every - row).sum(1).min() < 1e-6 for row in seen)
+        near = np.hypot(*(every[:, :2] - ep["ego"][k][:2]).T) < tarl.EnvConfig().perception - tarl.EnvConfig().length
+        assert all(len(seen) and np.abs(seen - row).sum(1).min() < 1e-6 for row in every[near])
+    # five snapshots from the departure to leaving the conflict area (or the episode's end)
+    frames, end = figures.snapshot_frames(ep, until_collision=False)
+    zones = [f["zone"] for f in ep["frames"]]
+    assert frames[0] == 0 and frames[-1] == end and len(frames) == 5 and np.all(np.diff(frames) > 0)
+    assert end == (zones.index(2) if 2 in zones else n)
+    assert all(z == 0 for z in zones[:zones.index(1)]) if 1 in zones else True
+
+
+def write_log(folder: Path, rows):
+    folder.mkdir(parents=True)
+    (folder / "train_log.csv").write_text(HEADER + "".join(",".join(map(str, r)) + "\n" for r in rows))
+
+
+def test_training_draws_real_episodes_of_a_tiny_log_and_rejects_a_missing_folder(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    # step 1 until 300, then the imagination (returns of 99, which must not show) and the real environment
+    write_log(runs / "intersection-tarl-s0", [(100, "step1", 10, 1, 0, 0, 9.0, ""), (300, "step1", -20, 0, 1, 0, "", ""),
+                                              (350, "imagination", 99, 1, 0, 0, 5.0, 0.2),
+                                              (500, "real", 30, 1, 0, 0, 8.0, 0.3), (600, "real", -10, 0, 1, 0, "", 0.1),
+                                              (700, "imagination", 99, 0, 1, 0, "", 0.2)])
+    write_log(runs / "intersection-sac-s1", [(200, "step1", 0, 0, 1, 0, "", ""), (650, "real", 5, 0, 0, 1, "", "")])
+    log = figures.read_log(runs / "intersection-tarl-s0" / "train_log.csv")
+    assert figures.step_one_end(log) == 300
+    np.testing.assert_allclose(figures.binned(log, "episode_return", 350, 2), [-5.0, 10.0])  # no 99 in either bin
+    np.testing.assert_allclose(figures.binned(log, "collision", 350, 2), [0.5, 0.5])
+    mean, low, high = figures.over_seeds(np.array([[1.0, np.nan], [3.0, np.nan]]))
+    assert mean[0] == 2.0 and (low[0], high[0]) == (1.0, 3.0) and np.isnan(mean[1])
+
+    out = tmp_path / "fig5.png"
+    figures.main(["training", "--runs", str(runs), "--out", str(out)])
+    assert png_shape(out)[1] > 500
+    with pytest.raises(SystemExit) as e:
+        figures.main(["training", "--runs", str(tmp_path / "missing"), "--out", str(out)])
+    assert str(e.value) == f"figures.py: --runs {tmp_path / 'missing'}: no such folder"
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SystemExit, match="no SCENARIO-ALGO-sSEED/train_log.csv"):
+        figures.main(["training", "--runs", str(tmp_path / "empty")])
+
+
+def eval_json(path: Path, outcomes, **row) -> Path:
+    cases = [dict(round=0, case=c, start=f"{c:016x}", outcome=o, crossing_time=10.0 if o == "arrival" else None,
+                  steps=50) for c, o in enumerate(outcomes)]
+    path.write_text(json.dumps(dict(scenario="intersection", seed=0, rows=[
+        dict(algo="lattice-idm", label="Lattice-IDM", cases_per_round=len(cases), cases=cases, **row)])))
+    return path
+
+
+def test_failure_and_case_refuse_bad_input_in_one_line_before_simulating(tmp_path):
+    calm = eval_json(tmp_path / "eval.json", ["arrival", "timeout", "arrival"])
+    base = ["failure", "--scenario", "intersection", "--algo", "lattice-idm", "--eval"]
+    with pytest.raises(SystemExit) as e:
+        figures.main(base + [str(calm)])
+    assert str(e.value) == f"figures.py: --eval {calm}: lattice-idm has no collision in its 3 test cases"
+    with pytest.raises(SystemExit, match="no such file"):
+        figures.main(base + [str(tmp_path / "missing.json")])
+    with pytest.raises(SystemExit, match="no row --algo tarl"):
+        figures.main(["failure", "--scenario", "intersection", "--algo", "tarl", "--load", "x.pt", "--eval", str(calm)])
+    with pytest.raises(SystemExit, match="is of the intersection, not --scenario roundabout"):
+        figures.main(["failure", "--scenario", "roundabout", "--algo", "lattice-idm", "--eval", str(calm)])
+    with pytest.raises(SystemExit) as e:
+        figures.main(["case", "--scenario", "intersection", "--algo", "lattice-idm", "--case", "3", "--cases", "3"])
+    assert "beyond the round" in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(SystemExit, match="checkpoint not found"):
+        figures.main(["case", "--scenario", "intersection", "--case", "0", "--load", str(tmp_path / "missing.pt")])
+
+
+def test_beta_table_groups_the_timings_and_quotes_the_paper(tmp_path, capsys):
+    share = [0.5, 0.1, 0.1, 0.2, 0.1, 0, 0, 0, 0, 0]
+    path = eval_json(tmp_path / "eval.json", ["arrival", "collision"],
+                     beta_minus={"all_steps": 0.4, "3s_before_collision": 0.6, "1s_before_collision": 0.8},
+                     timing_share={"all_steps": share, "3s_before_collision": [0, 0, 1.0] + [0] * 7})
+    text = figures.main(["beta", "--eval", str(path), "--out", str(tmp_path / "beta.md")])
+    assert "| intersection | Lattice-IDM | 0 | 2 | 1 | 0.400 | 0.600 | 0.800 |" in text
+    assert "| 0.500 | 0.200 | 0.300 | 0.000 | 1.000 | 0.000 |" in text  # T = 1, 2-3, >= 4; the same before collisions
+    assert (tmp_path / "beta.md").read_text() == text + "\n"
+    assert figures.PAPER_BETA_MINUS == {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
