@@ -381,6 +381,7 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
     start, done = env.fingerprint(), False
     while not done:
         a, T, b = driver.act(obs, env, deterministic)
+        env.show(f"T = {T or '-'}, beta = {b:.2f}")
         for key, value in (("a", np.nan if a is None else a[0]), ("T", T or 0), ("beta", b), ("v", env.v),
                            ("a_base", env.base_action() if b < 1.0 or record else np.nan), ("a_bar", execute(env, a, b))):
             ep[key].append(value)

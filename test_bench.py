@@ -7,7 +7,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import speed  # noqa: E402
 
 KEYS = ("sac_updates_per_s", "sac_plain_updates_per_s", "sac_ratio", "timing_updates_per_s",
-        "env_steps_per_s", "sumo_raw_steps_per_s", "planner_calls_per_s", "train_steps_per_s")
+        "env_steps_per_s", "sumo_raw_steps_per_s", "planner_calls_per_s", "train_steps_per_s", "cases_record_s",
+        "cases_load_ms")
 
 
 def test_speed_quick_prints_every_number_the_issue_asks_for(capsys):

@@ -295,8 +295,9 @@ class DrivingEnv:
                 "--max-depart-delay", "30",
                 # test cases are saved states: keep every digit of the humans' parameters
                 "--save-state.precision", "17", "--save-state.rng", "true"]
-        if self.gui:
-            args += ["--start", "--quit-on-end", "--delay", "50"]
+        if self.gui:  # scenarios/gui.xml: the ego's timing written beside it
+            args += ["--start", "--quit-on-end", "--delay", "100", "--window-size", "1000,800",
+                     "--gui-settings-file", str(HERE / "scenarios" / "gui.xml")]
         if not self.checked:  # libsumo takes the process down on a broken network: try it in a subprocess
             check = subprocess.run([str(sumo_home() / "bin" / "sumo"), *args[:4], "--end", "0"],
                                    capture_output=True, text=True)
@@ -498,6 +499,10 @@ class DrivingEnv:
         sim.vehicle.subscribeContext(EGO, V.CMD_GET_VEHICLE_VARIABLE, c.perception,
                                      [V.VAR_POSITION, V.VAR_SPEED, V.VAR_ANGLE])
         self.ego_alive, self.t_spawn, self.accel, self.waited, self._headings = True, sim.simulation.getTime(), 0.0, 0.0, {}
+        if self.gui:  # follow the ego at a readable zoom [%]
+            sim.gui.setSchema("View #0", "tarl")
+            sim.gui.trackVehicle("View #0", EGO)
+            sim.gui.setZoom("View #0", 150)
         self._read()
         return self.obs, self._info(False, False, False, 0.0)
 
@@ -538,6 +543,11 @@ class DrivingEnv:
             self._plan = planner.plan(self.s - self.cfg.length / 2, self.v, self.accel, self.task["s"],
                                       self.task["xy"], self.others, self.planner_cfg)
         return self._plan
+
+    def show(self, text: str):
+        """Write `text` beside the ego in sumo-gui (its parameter "timing", scenarios/gui.xml)."""
+        if self.gui:
+            self.sim.vehicle.setParameter(EGO, "timing", text)
 
     def base_action(self) -> float:
         """a_base of Eq. (23) in the present state, from planner.py."""

@@ -32,6 +32,7 @@ import os
 import platform
 import statistics
 import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -295,10 +296,11 @@ def planner_section(states, repeats) -> dict:
 
 # ---- (d) training ---------------------------------------------------------------------------
 
-def train_section(steps, warmup) -> dict:
+def train_section(steps, warmup, time_limit=60.0) -> dict:
     """Steps/s of Trainer.run on the roundabout, with updates from the start (small N_start)."""
     out = {}
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout"))
+    # a loop of Alg. 1 ends with its episode: --quick shortens episodes, or a few steps become hundreds
+    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
     sac_cfg = SACConfig(learning_starts=256)
     for phase in ("sac", "tarl"):  # plain SAC = Alg. 1 step 1; TARL without its step 1: both loops
         tc = tarl.TrainConfig(steps=warmup, sac_fraction=0.0, timing_pretrain=0.05, timing_learning_starts=64,
@@ -317,6 +319,32 @@ def train_section(steps, warmup) -> dict:
     return dict(train_steps_per_s=out["tarl"], train_sac_steps_per_s=out["sac"],
                 train_updates_per_step=out["tarl_updates_per_step"],
                 train_sac_updates_per_step=out["sac_updates_per_step"], paper_budget_hours=hours)
+
+
+# ---- (e) test cases ----------------------------------------------------------------------------
+
+def cases_section(n, rounds) -> dict:
+    """What the fixed test cases cost on the roundabout: recording a round of n cases (the traffic alone,
+    saved every case_gap s) and loading one, against what the former protocol paid instead: one restart
+    with its warm-up per round, and nothing per case. The episodes themselves cost the same either way."""
+    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout"))
+    record, load, restart = [], [], []
+    with tempfile.TemporaryDirectory() as folder:
+        for r in range(rounds):
+            start = time.perf_counter()
+            env._start(1000 + r)
+            restart.append(time.perf_counter() - start)
+            start = time.perf_counter()
+            cases = env.record_cases(1000 + r, n, folder)
+            record.append(time.perf_counter() - start)
+            for case in cases[:: max(1, n // 10)]:
+                start = time.perf_counter()
+                env._load_case(case)
+                load.append(time.perf_counter() - start)
+    env.close()
+    per_round = np.mean(record) + n * np.mean(load) - np.mean(restart)
+    return dict(cases_record_s=float(np.mean(record)), cases_load_ms=1e3 * float(np.mean(load)),
+                cases_restart_s=float(np.mean(restart)), cases_extra_s_per_round=float(per_round), cases_per_round=n)
 
 
 # ---- report -----------------------------------------------------------------------------------
@@ -356,6 +384,9 @@ def table(r) -> str:
     s.append(f"| training, imagination + actor ({r['train_updates_per_step']:.2f} updates/step) |"
              f" {r['train_steps_per_s']:.0f} steps/s | | |")
     s.append(f"| the paper's 5x10^5 steps (40 % step 1), extrapolated | {r['paper_budget_hours']:.2f} h | | |")
+    s.append(f"| test cases, roundabout: record a round of {r['cases_per_round']}, load one | {r['cases_record_s']:.1f} s,"
+             f" {r['cases_load_ms']:.1f} ms | a restart with warm-up {r['cases_restart_s']:.2f} s | +{r['cases_extra_s_per_round']:.1f}"
+             " s per round |")
     return "\n".join(s)
 
 
@@ -382,7 +413,9 @@ def main(argv=None):
     log("(c) base planner ...")
     r.update(planner_section(states, 1 if args.quick else 3))
     log("(d) training steps ...")
-    r.update(train_section(*((30, 280) if args.quick else (1500, 800))))
+    r.update(train_section(*((30, 280, 6.0) if args.quick else (1500, 800))))
+    log("(e) test cases ...")
+    r.update(cases_section(*((5, 1) if args.quick else (200, 3))))
     print(json.dumps(r, indent=1) if args.json else table(r))
 
 
