@@ -30,7 +30,7 @@ ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-
 # cases, so Lattice-IDM has no cell of its own
 RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t")  # "What the timing adds" (README)
-NAMES = {"tarl": "TARL", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
+NAMES = {"tarl": "TARL", "tarl-step1": "TARL step 1", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
          "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO",
          "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": "TARL, T random"}
 # Table 3 of the paper: success rate and crossing time [s], mean +- std over 10 rounds of 200 cases
@@ -137,7 +137,7 @@ def collect(args):
     for scenario in SCENARIOS:
         lines += [f"## {scenario}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
                   "at 60 s [s] | paper success | paper crossing [s] |", "|---|---|---|---|---|---|---|---|"]
-        for algo in ROWS + ABLATIONS:
+        for algo in ("tarl", "tarl-step1", *ROWS[1:], *ABLATIONS):  # TARL's step-1 model: from TARL's cell
             rows = found.get((scenario, algo))
             if not rows:
                 continue
