@@ -675,12 +675,14 @@ def test_seed(seed: int, round_: int) -> int:
     return 1_000_000 + 1000 * seed + round_
 
 
-def play_round(env: DrivingEnv, driver: Driver, cases: int, seed: int, round_: int) -> list[dict]:
-    """One round of Table 3: its test cases (record_cases), each played by `driver` acting
-    deterministically (the actor's mean, the most likely T). The rollout() of each, in order."""
+def play_round(env: DrivingEnv, drivers: list[Driver], cases: int, seed: int, round_: int) -> list[list[dict]]:
+    """One round of Table 3 for every driver: the round's test cases (record_cases, once), each played by
+    each driver acting deterministically (the actor's mean, the most likely T). Per driver, the rollout()
+    of each case, in order."""
     with tempfile.TemporaryDirectory() as folder:
-        played = [rollout(env, driver, {"case": case}) for case in env.record_cases(test_seed(seed, round_), cases, folder)]
-    return [dict(ep, round=round_, case=c) for c, ep in enumerate(played)]
+        recorded = env.record_cases(test_seed(seed, round_), cases, folder)
+        return [[dict(rollout(env, driver, {"case": case}), round=round_, case=c) for c, case in enumerate(recorded)]
+                for driver in drivers]
 
 
 _worker_env: DrivingEnv | None = None  # an evaluation process's own simulation
@@ -696,25 +698,27 @@ def _play_round_in_worker(cfg: EnvConfig, *job):
 def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: int = 0, workers: int = 2,
              env: DrivingEnv | None = None, log=print) -> list[dict]:
     """Table 3's protocol for every row (dicts of algo, driver, optional label and train_steps): R rounds
-    of C test cases, round r from test_seed(seed, r). The (row, round) jobs run in `workers` processes,
-    or here on `env` if workers is 0 (sumo-gui, tests): a round gives the same numbers wherever it runs."""
+    of C test cases, round r from test_seed(seed, r), every row on the same cases. The rounds run in
+    `workers` processes, or here on `env` if workers is 0 (sumo-gui, tests): a round gives the same
+    numbers wherever it runs."""
     import concurrent.futures as cf
     import multiprocessing as mp
-    jobs = [(i, r) for i in range(len(rows)) for r in range(rounds)]
-    played, t0 = {}, time.time()
+    drivers, played, t0 = [row["driver"] for row in rows], {}, time.time()
     if workers:
         pool = cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
-        futures = {pool.submit(_play_round_in_worker, cfg, rows[i]["driver"], cases, seed, r): (i, r) for i, r in jobs}
+        futures = {pool.submit(_play_round_in_worker, cfg, drivers, cases, seed, r): r for r in range(rounds)}
         done = ((futures[f], f.result()) for f in cf.as_completed(futures))
     else:
-        done = (((i, r), play_round(env, rows[i]["driver"], cases, seed, r)) for i, r in jobs)
-    for n, ((i, r), result) in enumerate(done, 1):
-        played[i, r] = result
-        log(f"  {rows[i]['algo']} round {r + 1}/{rounds}: success {np.mean([ep['outcome'] == 'arrival' for ep in result]):.3f}"
-            f"  [{n}/{len(jobs)} rounds, {time.time() - t0:.0f} s, ETA {(time.time() - t0) / n * (len(jobs) - n):.0f} s]")
+        done = ((r, play_round(env, drivers, cases, seed, r)) for r in range(rounds))
+    for n, (r, result) in enumerate(done, 1):
+        played[r] = result
+        successes = ", ".join(f"{row['algo']} {np.mean([ep['outcome'] == 'arrival' for ep in eps]):.3f}"
+                              for row, eps in zip(rows, result))
+        log(f"  round {r + 1}/{rounds}: success {successes}  [{n}/{rounds} rounds, {time.time() - t0:.0f} s, "
+            f"ETA {(time.time() - t0) / n * (rounds - n):.0f} s]")
     if workers:
         pool.shutdown()
-    return [summarize(row, [played[i, r] for r in range(rounds)], cfg, seed) for i, row in enumerate(rows)]
+    return [summarize(row, [played[r][i] for r in range(rounds)], cfg, seed) for i, row in enumerate(rows)]
 
 
 def mean_std(x) -> dict:

@@ -158,9 +158,9 @@ def test_two_drivers_meet_the_same_test_cases():
     import tarl
     env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
     try:
-        planner_only = tarl.play_round(env, tarl.Driver("planner"), cases=4, seed=0, round_=0)
+        planner_only = tarl.play_round(env, [tarl.Driver("planner")], cases=4, seed=0, round_=0)[0]
         full_throttle = tarl.Driver("none", type("Throttle", (), {"act": lambda self, obs, det: np.array([2.0])})())
-        reckless = tarl.play_round(env, full_throttle, cases=4, seed=0, round_=0)
+        reckless = tarl.play_round(env, [full_throttle], cases=4, seed=0, round_=0)[0]
         with tempfile.TemporaryDirectory() as folder:  # a case played alone, after others: the same episode
             cases = env.record_cases(tarl.test_seed(0, 0), 4, folder)
             alone = tarl.rollout(env, tarl.Driver("planner"), {"case": cases[2]})

@@ -28,7 +28,7 @@ def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path)
     trainer = tarl.Trainer(env, "tarl", small, tarl.SACConfig(buffer_size=1000), out=tmp_path, log=lambda *a: None)
     trainer.save()
     assert (tmp_path / "ckpt.pt").is_file() and (tmp_path / "policy.pt").is_file()
-    expected = tarl.play_round(env, trainer.driver, 3, 0, 0)[2]  # the evaluation's case 2 of round 0
+    expected = tarl.play_round(env, [trainer.driver], 3, 0, 0)[0][2]  # the evaluation's case 2 of round 0
     env.close()
 
     out = tmp_path / "fig6.png"
