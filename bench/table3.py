@@ -64,7 +64,7 @@ def publish(scenario, algo, seed, args):
     """Copy a finished cell's small files to results/runs and commit them (--commit)."""
     src, dst = args.work / f"{scenario}-{algo}-s{seed}", args.results / "runs" / f"{scenario}-{algo}-s{seed}"
     dst.mkdir(parents=True, exist_ok=True)
-    for name in ("train_log.csv", "lambda_log.csv") + ("policy.pt",) * (seed == 0):
+    for name in ("train_log.csv", "constraint_log.csv") + ("policy.pt",) * (seed == 0):
         if (src / name).exists():
             shutil.copy(src / name, dst / name)
     shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
