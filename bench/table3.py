@@ -6,8 +6,8 @@
 
 A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
 checkpoints), evaluated on the fixed test cases of seed K; TARL's cell is the default command, which
-also evaluates Lattice-IDM and TARL's step-1 model on the same cases. When it finishes, its eval.json and
-train_log.csv (and, for seed 0, its policy.pt) are copied to results/runs/S-A-sK and, with
+also evaluates Lattice-IDM and TARL's step-1 model on the same cases. When it finishes, its eval.json,
+train_log.csv, constraint_log.csv (safe-RL rows) and, for seed 0, policy.pt go to results/runs/S-A-sK and, with
 --commit, committed: an interruption loses at most the cells in progress, which resume from their
 checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
 The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
