@@ -27,6 +27,7 @@ import json
 import math
 import os
 import signal
+import subprocess
 import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
@@ -849,7 +850,9 @@ def main(argv=None):
     print(table(results))
     if "beta_minus" in results[0]:
         print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
-    (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, rows=results)))
+    code = subprocess.run(["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
+                          capture_output=True, text=True).stdout.strip() or None  # the commit the numbers came from
+    (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code, rows=results)))
     print(f"wrote {args.out / 'eval.json'}")
 
 
