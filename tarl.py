@@ -382,14 +382,15 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
     start, done = env.fingerprint(), False
     while not done:
         a, T, b = driver.act(obs, env, deterministic)
-        env.show(f"T = {T or '-'}, beta = {b:.2f}")
+        if env.gui:
+            env.show(f"T = {T or '-'}, beta = {b:.2f}")
         for key, value in (("a", np.nan if a is None else a[0]), ("T", T or 0), ("beta", b), ("v", env.v),
                            ("a_base", env.base_action() if b < 1.0 or record else np.nan), ("a_bar", execute(env, a, b))):
             ep[key].append(value)
         if record:
             ep["ego"].append((*env.xy, env.heading))
             ep["others"].append(env.others[:, [0, 1, 3]].copy())
-            ep["plan"].append(np.stack([np.interp(env.plan().s, env.task["s"], env.task["xy"][:, k]) for k in (0, 1)], 1))
+            ep["plan"].append(env.plan_xy())
         obs, _, terminated, truncated, info = env.step(ep["a_bar"][-1])
         done = terminated or truncated
     outcome = "collision" if info["collision"] else "arrival" if info["arrival"] else "timeout"

@@ -65,6 +65,13 @@ def test_an_action_bound_changed_in_its_one_home_reaches_the_planner_the_actor_a
     assert planner.base_action(50.0, 10.0, 0.0, path_s, path_xy, others, env.planner_cfg)[0] == -4.0
 
 
+def record_calls(obj, name: str) -> list:
+    """Wrap obj.name so that every value it returns is also appended to the returned list (del obj.name undoes it)."""
+    calls, method = [], getattr(obj, name)
+    setattr(obj, name, lambda *args, **kw: calls.append(method(*args, **kw)) or calls[-1])
+    return calls
+
+
 class Recorder:
     """The environment, with every executed action, the base action before it and the reward recorded."""
 
@@ -91,9 +98,7 @@ def trainer():
 
 
 def test_the_real_loop_executes_eq_12_and_stores_the_actors_action_with_the_blended_reward(trainer):
-    proposals = []
-    act = trainer.driver.act
-    trainer.driver.act = lambda *args, **kw: proposals.append(act(*args, **kw)) or proposals[-1]
+    proposals = record_calls(trainer.driver, "act")
     trainer.env.steps.clear()
     start = len(trainer.D_a)
     trainer.actor_loop(trainer.driver, "real")
@@ -109,9 +114,7 @@ def test_the_real_loop_executes_eq_12_and_stores_the_actors_action_with_the_blen
 
 
 def test_the_timing_buffer_holds_r_T_and_gamma_to_the_T(trainer):
-    timings = []
-    act = trainer.timing_taker.act
-    trainer.timing_taker.act = lambda *args, **kw: timings.append(act(*args, **kw)) or timings[-1]
+    timings = record_calls(trainer.timing_taker, "act")
     trainer.env.steps.clear()
     start = len(trainer.D_T)
     trainer.imagination_loop()

@@ -361,9 +361,10 @@ class DrivingEnv:
             if self.sim.simulation.getTime() - self.t_start > self.cfg.sc.t_sim:
                 self._start(int(self.rng.integers(2**31)))
             self._run_traffic(self.cfg.case_gap)
-            self.sim.simulation.saveState(str(Path(folder) / f"case{c}.xml"))
+            file = str(Path(folder) / f"case{c}.xml")
+            self.sim.simulation.saveState(file)
             alive = {*self.sim.vehicle.getIDList(), *self.sim.simulation.getPendingVehicles()}
-            cases.append(dict(file=str(Path(folder) / f"case{c}.xml"), seed=[seed, c], n_humans=self.n_humans,
+            cases.append(dict(file=file, seed=[seed, c], n_humans=self.n_humans,
                               humans={h: p for h, p in self.humans.items() if h in alive}))
         return cases
 
@@ -544,6 +545,10 @@ class DrivingEnv:
                                       self.task["xy"], self.others, self.planner_cfg)
         return self._plan
 
+    def plan_xy(self) -> np.ndarray:
+        """The base planner's planned trajectory now as (K, 2) points x, y [m] of the ego's centre."""
+        return np.stack([np.interp(self.plan().s, self.task["s"], self.task["xy"][:, k]) for k in (0, 1)], 1)
+
     def show(self, text: str):
         """Write `text` beside the ego in sumo-gui (its parameter "timing", scenarios/gui.xml)."""
         if self.gui:
@@ -655,12 +660,13 @@ class DrivingEnv:
             if self.decisions.get(h) != k:
                 sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
                 self.decisions[h] = k
-            # A yielding human stops before the junction of the conflict point if that is the next one
-            # (at its stop line, or a ring junction's entry), else stop_margin before the conflict point.
-            stop = dh - c.stop_margin
-            if not within and sim.edge.getToJunction(lane.rsplit("_", 1)[0]) == foes[h][2][1:].rsplit("_", 2)[0]:
-                stop = min(stop, sim.lane.getLength(lane) - sim.vehicle.getLanePosition(h) - 0.5)
-            limit = math.sqrt(2.0 * b * max(0.0, stop))
+            if k == YIELD:
+                # It stops before the junction of the conflict point if that is the next one (at its
+                # stop line, or a ring junction's entry), else stop_margin before the conflict point.
+                stop = dh - c.stop_margin
+                if not within and sim.edge.getToJunction(lane.rsplit("_", 1)[0]) == foes[h][2][1:].rsplit("_", 2)[0]:
+                    stop = min(stop, sim.lane.getLength(lane) - sim.vehicle.getLanePosition(h) - 0.5)
+                limit = math.sqrt(2.0 * b * max(0.0, stop))
             if k == YIELD and limit < vh + a * c.dt:  # the stopping profile binds: cap the speed
                 sim.vehicle.setSpeed(h, limit)
                 self.capped.add(h)

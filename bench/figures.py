@@ -306,7 +306,7 @@ def replay(env: tarl.DrivingEnv, driver: tarl.Driver, seed: int, round_: int, ca
         ep["frames"] = watch.frames + [scene(env, env.obs)]
         ep["ego"] = np.vstack([ep["ego"], [*env.xy, env.heading]])
         ep["others"] = ep["others"] + [env.others[:, [0, 1, 3]].copy()]
-        ep["plan"] = ep["plan"] + [np.stack([np.interp(env.plan().s, env.task["s"], env.task["xy"][:, k]) for k in (0, 1)], 1)]
+        ep["plan"] = ep["plan"] + [env.plan_xy()]
         ep["v_frames"] = np.append(ep["v"], env.v)
         ep["net"] = network(env)
     progress(f"  case {case}: {ep['outcome']} after {ep['steps']} steps [{time.time() - t0:.0f} s]")
