@@ -102,6 +102,34 @@ def test_level_k_yield_is_enforced_in_sumo():
         env.close()
 
 
+def test_a_human_stuck_inside_the_junction_is_removed_and_the_ego_never(empty_env):
+    """Humans who stop inside a junction for jam_time leave the simulation (a gridlock of humans never
+    resolves); the ego, standing inside the junction longer still, stays."""
+    env, sim = empty_env, empty_env.sim
+    env.reset(seed=0, options={"route": "S_N"})
+    sim.vehicle.add("stuck", "N_S", typeID="human", depart="now", departSpeed="max")
+    stopped = {}  # vehicle -> time [s] it was stopped inside the junction
+    for _ in range(round(60.0 / env.cfg.dt)):
+        ids = sim.vehicle.getIDList()
+        for v in ("stuck", world.EGO):
+            if v in ids and v not in stopped and sim.vehicle.getLaneID(v).startswith(":"):
+                stopped[v] = sim.simulation.getTime()
+                sim.vehicle.setSpeed(v, 0.0)  # held here, as by a gridlock
+        if "stuck" in stopped and "stuck" not in ids:
+            break
+        obs, r, terminated, truncated, info = env.step(-3.0 if world.EGO in stopped or env.v > 3.0 else 0.0)
+        assert not (terminated or truncated)
+    assert set(stopped) == {"stuck", world.EGO}
+    assert "stuck" not in sim.vehicle.getIDList()  # removed ...
+    assert sim.simulation.getTime() - stopped["stuck"] == pytest.approx(env.cfg.jam_time, abs=1.5)  # ... on time
+    for _ in range(round(60.0 / env.cfg.dt)):  # the ego stands inside for jam_time + 2 s
+        if sim.vehicle.getWaitingTime(world.EGO) >= env.cfg.jam_time + 2.0:
+            break
+        obs, r, terminated, truncated, info = env.step(-3.0)
+    assert sim.vehicle.getWaitingTime(world.EGO) >= env.cfg.jam_time + 2.0
+    assert sim.vehicle.getLaneID(world.EGO).startswith(":") and env.jam_removals >= 1
+
+
 def test_unknown_scenario_is_refused():
     with pytest.raises(ValueError, match="unknown scenario"):
         world.DrivingEnv(EnvConfig(scenario="highway"))

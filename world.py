@@ -69,6 +69,8 @@ class EnvConfig:
     warmup: float = 120.0  # [s] of traffic after every (re)start before the ego enters
     case_gap: float = 30.0  # [s] of traffic between the snapshots of two test cases (record_cases)
     spawn_clear: float = 12.0  # [m] the ego's spawn lane is free this far from its start
+    jam_time: float = 20.0  # [s] a human standing this long inside a junction is removed: humans who
+    #                         entered it and block each other never move again (SUMO's teleport, off here)
     # Level-k game (Eqs. (24)-(26)), open: the ranges of Eq. (25)'s min-max normalisation and more
     gap_range: float = 5.0  # [s] phi_safe: the arrival-time gap saturates here
     wait_range: float = 10.0  # [s] phi_eff: waiting for the other to pass
@@ -284,6 +286,7 @@ class DrivingEnv:
         self.rng = np.random.default_rng()
         self.running = self.ego_alive = self.checked = False
         self.tasks: list[dict] | None = None  # the ego's routes, read from SUMO at the first start
+        self.jam_removals = 0  # humans removed from a gridlock (_forget_arrived), since this env was made
 
     def _start(self, seed: int):
         c, sim = self.cfg, self.sim
@@ -327,6 +330,7 @@ class DrivingEnv:
         self.decisions: dict[str, int] = {}  # humans now playing the game -> CROSS / YIELD
         self.capped: set[str] = set()  # yielding humans whose speed is capped
         self.tasks = self.tasks or self._ego_tasks()
+        self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
         self._run_traffic(c.warmup)
 
     def _run_traffic(self, seconds: float):
@@ -577,7 +581,20 @@ class DrivingEnv:
                    for v in self.sim.lane.getLastStepVehicleIDs(lane))
 
     def _forget_arrived(self):
-        for h in self.sim.simulation.getArrivedIDList():
+        """After every SUMO step: forget the humans who left, and once a second clear the junctions of
+        humans stuck in them for jam_time (a gridlock of humans inside the junction lasts for good,
+        with the ego driving through a frozen world: at the intersection from ~400 s on)."""
+        sim = self.sim
+        gone = list(sim.simulation.getArrivedIDList())
+        if round(sim.simulation.getTime() / self.cfg.dt) % round(1.0 / self.cfg.dt) == 0:
+            stuck = [h for lane in self.internal_lanes for h in sim.lane.getLastStepVehicleIDs(lane)
+                     if h != EGO and sim.vehicle.getWaitingTime(h) >= self.cfg.jam_time]
+            for h in stuck:
+                self._release(h)
+                sim.vehicle.remove(h)
+            self.jam_removals += len(stuck)
+            gone += stuck
+        for h in gone:
             self.humans.pop(h, None)
             self.decisions.pop(h, None)
             self.capped.discard(h)
