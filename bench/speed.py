@@ -17,7 +17,8 @@
 (c) Base-planner calls per second on the states met in (b), and candidates per call.
 (d) Training steps per second: Algorithm 1 on the roundabout, in step 1 (plain SAC, one update
     per step) and in the imagination + actor loops (an update per actor step and per timing
-    decision), and what that makes of the paper's 5 x 10^5 steps.
+    decision), and what that makes of the paper's 5 x 10^5 steps; and the on-policy rows of
+    baselines.py (PPO-Lag, CPO): rollouts of N steps, each followed by its update, per second.
 
 The machine is shared and its speed drifts: variants run in alternating blocks and the report
 gives medians (rates) and the median of the per-round paired ratios.
@@ -43,6 +44,7 @@ import torch.nn.functional as F
 from torch.utils.flop_counter import FlopCounterMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import baselines  # noqa: E402
 import planner  # noqa: E402
 import tarl  # noqa: E402
 from tarl import SAC, SACConfig, mlp  # noqa: E402
@@ -296,8 +298,9 @@ def planner_section(states, repeats) -> dict:
 
 # ---- (d) training ---------------------------------------------------------------------------
 
-def train_section(steps, warmup, time_limit=60.0) -> dict:
-    """Steps/s of Trainer.run on the roundabout, with updates from the start (small N_start)."""
+def train_section(steps, warmup, rollout, time_limit=60.0) -> dict:
+    """Steps/s of Trainer.run on the roundabout, with updates from the start (small N_start); of PPO-Lag and
+    CPO over two rollouts of `rollout` steps and their updates (SafeRLConfig's N: 2,048)."""
     out = {}
     # a loop of Alg. 1 ends with its episode: --quick shortens episodes, or a few steps become hundreds
     env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
@@ -316,7 +319,16 @@ def train_section(steps, warmup, time_limit=60.0) -> dict:
     env.close()
     budget, share = 500_000, tarl.TrainConfig().sac_fraction  # Table 2's N_train; Alg. 1 step 1's share
     hours = budget * (share / out["sac"] + (1 - share) / out["tarl"]) / 3600
-    return dict(train_steps_per_s=out["tarl"], train_sac_steps_per_s=out["sac"],
+    for algo in ("ppo-lag", "cpo"):  # env-bound: a rollout of N steps, then one update on it
+        env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
+        tc = tarl.TrainConfig(steps=2 * rollout, log_every=10**9, checkpoint_every=10**9)
+        trainer = baselines.OnPolicyTrainer(env, algo, tc, baselines.SafeRLConfig(rollout=rollout), log=lambda *a: None)
+        start = time.perf_counter()
+        trainer.run()
+        out[algo] = trainer.step / (time.perf_counter() - start)
+        env.close()
+    return dict(train_steps_per_s=out["tarl"], train_sac_steps_per_s=out["sac"], train_ppo_lag_steps_per_s=out["ppo-lag"],
+                train_cpo_steps_per_s=out["cpo"], train_rollout=rollout,
                 train_updates_per_step=out["tarl_updates_per_step"],
                 train_sac_updates_per_step=out["sac_updates_per_step"], paper_budget_hours=hours)
 
@@ -383,6 +395,9 @@ def table(r) -> str:
              f" {r['train_sac_steps_per_s']:.0f} steps/s | | |")
     s.append(f"| training, imagination + actor ({r['train_updates_per_step']:.2f} updates/step) |"
              f" {r['train_steps_per_s']:.0f} steps/s | | |")
+    for algo, name in (("ppo_lag", "PPO-Lag"), ("cpo", "CPO")):
+        s.append(f"| training, {name} (rollouts of {r['train_rollout']:,}, then an update) |"
+                 f" {r[f'train_{algo}_steps_per_s']:.0f} steps/s | | |")
     s.append(f"| the paper's 5x10^5 steps (40 % step 1), extrapolated | {r['paper_budget_hours']:.2f} h | | |")
     s.append(f"| test cases, roundabout: record a round of {r['cases_per_round']}, load one | {r['cases_record_s']:.1f} s,"
              f" {r['cases_load_ms']:.1f} ms | a restart with warm-up {r['cases_restart_s']:.2f} s | +{r['cases_extra_s_per_round']:.1f}"
@@ -413,7 +428,7 @@ def main(argv=None):
     log("(c) base planner ...")
     r.update(planner_section(states, 1 if args.quick else 3))
     log("(d) training steps ...")
-    r.update(train_section(*((30, 280, 6.0) if args.quick else (1500, 800))))
+    r.update(train_section(*((30, 280, 32, 6.0) if args.quick else (1500, 800, baselines.SafeRLConfig.rollout))))
     log("(e) test cases ...")
     r.update(cases_section(*((5, 1) if args.quick else (200, 3))))
     print(json.dumps(r, indent=1) if args.json else table(r))
