@@ -15,6 +15,7 @@ beside the mean over seeds of the per-round std (Table 3's +-) and the paper's v
 """
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -44,6 +45,14 @@ PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.73
                         "lattice-idm": (0.797, 0.030, 27.293, 0.291)}}
 
 
+STEPS = 100_000  # the default budget of every learned row (tarl.TrainConfig.steps)
+
+
+def cell_name(scenario, algo, seed, steps) -> str:
+    """S-A-sK; another budget than the default is in the name: S-A-sK-500k (the paper's, Table 2)."""
+    return f"{scenario}-{algo}-s{seed}" + (f"-{steps // 1000}k" if steps != STEPS else "")
+
+
 def cells(algos, seeds):
     """The grid, seed by seed, so that a first complete table comes early."""
     return [(scenario, algo, seed) for seed in seeds for algo in algos for scenario in SCENARIOS]
@@ -51,7 +60,7 @@ def cells(algos, seeds):
 
 def command(scenario, algo, seed, args, jobs) -> list[str]:
     """The cell's command, run from the repository's root (paths relative to it where they can be)."""
-    out = args.work / f"{scenario}-{algo}-s{seed}"
+    out = args.work / cell_name(scenario, algo, seed, args.steps)
     shown = out.relative_to(ROOT) if out.is_relative_to(ROOT) else out
     cmd = ["python", "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--steps", str(args.steps),
            "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", str(shown),
@@ -62,7 +71,8 @@ def command(scenario, algo, seed, args, jobs) -> list[str]:
 
 def publish(scenario, algo, seed, args):
     """Copy a finished cell's small files to results/runs and commit them (--commit)."""
-    src, dst = args.work / f"{scenario}-{algo}-s{seed}", args.results / "runs" / f"{scenario}-{algo}-s{seed}"
+    name = cell_name(scenario, algo, seed, args.steps)
+    src, dst = args.work / name, args.results / "runs" / name
     dst.mkdir(parents=True, exist_ok=True)
     for name in ("train_log.csv", "constraint_log.csv") + ("policy.pt",) * (seed == 0):
         if (src / name).exists():
@@ -86,7 +96,7 @@ def run_grid(todo, args):
     while todo or running:
         while todo and len(running) < args.jobs:
             cell = todo.pop(0)
-            out = args.work / "{}-{}-s{}".format(*cell)
+            out = args.work / cell_name(*cell, args.steps)
             out.mkdir(parents=True, exist_ok=True)
             log = open(out / "log.txt", "a")
             running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.jobs)[1:]], stdout=log, stderr=subprocess.STDOUT,
@@ -104,12 +114,13 @@ def run_grid(todo, args):
 
 
 def load(results: Path) -> dict:
-    """(scenario, algo) -> {seed: the row of eval.json}."""
+    """budget -> (scenario, algo) -> {seed: the row of eval.json}; the budget is the cell's (its name)."""
     found = {}
     for path in sorted((results / "runs").glob("*/eval.json")):
-        data = json.loads(path.read_text())
+        data, suffix = json.loads(path.read_text()), re.search(r"-(\d+)k$", path.parent.name)
+        budget = int(suffix[1]) * 1000 if suffix else STEPS
         for row in data["rows"]:
-            found.setdefault((data["scenario"], row["algo"]), {})[data["seed"]] = row
+            found.setdefault(budget, {}).setdefault((data["scenario"], row["algo"]), {})[data["seed"]] = row
     return found
 
 
@@ -134,11 +145,14 @@ def collect(args):
              f"Each cell: mean +- std over seeds of each seed's mean over {args.rounds} rounds x {args.cases} test cases; "
              "in brackets the mean per-round std (the paper's +-) and the number of seeds. Paper: Table 3 "
              f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from results/runs/*/eval.json.", ""]
-    for scenario in SCENARIOS:
-        lines += [f"## {scenario}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
+    for budget, scenario in [(STEPS, s) for s in SCENARIOS] + [(b, s) for b in sorted(found) if b != STEPS for s in SCENARIOS]:
+        if budget != STEPS and not any(key[0] == scenario for key in found[budget]):
+            continue
+        title = scenario if budget == STEPS else f"{scenario}, at {budget:,} training steps"
+        lines += [f"## {title}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
                   "at 60 s [s] | paper success | paper crossing [s] |", "|---|---|---|---|---|---|---|---|"]
         for algo in ("tarl", "tarl-step1", *ROWS[1:], *ABLATIONS):  # TARL's step-1 model: from TARL's cell
-            rows = found.get((scenario, algo))
+            rows = found.get(budget, {}).get((scenario, algo))
             if not rows:
                 continue
             paper = PAPER[scenario].get(algo)
@@ -156,7 +170,8 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--steps", type=int, default=100_000, help="training steps of every learned row")
+    p.add_argument("--steps", type=int, default=STEPS, help="training steps of every learned row (another budget's "
+                   "cells are S-A-sK-500k, reported apart)")
     p.add_argument("--rounds", type=int, default=10)
     p.add_argument("--cases", type=int, default=200)
     p.add_argument("--jobs", type=int, default=2, help="cells side by side (each with 2 // jobs torch threads)")
@@ -170,7 +185,7 @@ def main():
         collect(args)
         return print((args.results / "table3.md").read_text())
     todo = [c for c in cells(args.algos, args.seeds)
-            if not (args.results / "runs" / "{}-{}-s{}".format(*c) / "eval.json").exists()]
+            if not (args.results / "runs" / cell_name(*c, args.steps) / "eval.json").exists()]
     if args.print_commands:
         return print("\n".join(" ".join(command(*c, args, 1)) for c in todo))
     print(f"{len(todo)} cells to run, {args.jobs} at a time", flush=True)
