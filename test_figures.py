@@ -126,3 +126,20 @@ def test_beta_table_groups_the_timings_and_quotes_the_paper(tmp_path, capsys):
     assert "| 0.500 | 0.200 | 0.300 | 0.000 | 1.000 | 0.000 |" in text  # T = 1, 2-3, >= 4; the same before collisions
     assert (tmp_path / "beta.md").read_text() == text + "\n"
     assert figures.PAPER_BETA_MINUS == {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
+
+
+def test_constraint_draws_j_c_and_lambda_and_tabulates_lambda(tmp_path):
+    runs = tmp_path / "runs"
+    for folder, text in (("roundabout-sac-lag-s0", "step,J_c,lambda\n100,0.2,0.015\n200,0.1,0.02\n300,0.0,0.0\n"),
+                         ("roundabout-sac-lag-s1", "step,J_c,lambda\n150,0.04,0.0\n250,0.06,0.001\n"),
+                         ("roundabout-cpo-s0", "step,J_c,cpo_case,trial\n2048,0.3,1,3\n4096,0.1,3,0\n")):
+        (runs / folder).mkdir(parents=True)
+        (runs / folder / "constraint_log.csv").write_text(text)
+    out = tmp_path / "fig.png"
+    text = figures.main(["constraint", "--runs", str(runs), "--out", str(out)])
+    assert png_shape(out)[2] in (3, 4)
+    assert "| roundabout | SAC-Lag | 0 | 3 | 0.000 | 0.020 | 0.000 | 0.67 |" in text
+    assert "| roundabout | SAC-Lag | 1 | 2 | 0.060 | 0.001 | 0.001 | 0.50 |" in text
+    assert "| roundabout | CPO | 0 | 2 | 0.100 | - | - | - |" in text
+    with pytest.raises(SystemExit, match="no SCENARIO-ALGO-sSEED/constraint_log.csv"):
+        figures.main(["constraint", "--runs", str(tmp_path / "nothing"), "--out", str(out)])

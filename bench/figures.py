@@ -6,6 +6,7 @@ case, step by step), Fig. 7 (a failure case) and the numbers of Sec. 5.5 (1 - be
     python bench/figures.py failure --scenario intersection --load runs/intersection-tarl-s0/policy.pt \\
         --eval runs/intersection-tarl-s0/eval.json
     python bench/figures.py beta --eval results/runs/*-tarl-s*/eval.json [--out results/sec55_beta.md]
+    python bench/figures.py constraint [--runs results/runs] [--out results/fig_constraint.png]
 
 training  Fig. 5: one column per scenario, the episode return and the collision rate over training
           steps of every row of Table 3 found as RUNS/SCENARIO-ALGO-sSEED/train_log.csv. Real-environment
@@ -25,6 +26,8 @@ failure   Fig. 7: the first test case of --eval's row --algo that ended in a col
           ones) and drawn as `case`, the snapshots ending at the collision.
 beta      Sec. 5.5: 1 - beta over all steps and in the last 3 s and 1 s before collisions, beside the
           paper's; the share of steps at T = 1, T = 2-3, T >= 4. A markdown table.
+constraint  The safe-RL rows (baselines.py): J_c against the limit d, and lambda, over training steps from
+          RUNS/SCENARIO-ALGO-sSEED/constraint_log.csv; a markdown table of what lambda did per run.
 
 The snapshots: --window m square (120 m), centred on the junction and moved, where needed, just enough
 to keep the ego 10 m inside; every vehicle in SUMO, not only the ones the ego perceives: those within
@@ -56,6 +59,7 @@ from matplotlib.patches import Patch  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
+import baselines  # noqa: E402
 import tarl  # noqa: E402
 import world  # noqa: E402
 from table3 import ABLATIONS, NAMES, ROWS, SCENARIOS  # noqa: E402
@@ -611,6 +615,73 @@ def beta(args):
     return text
 
 
+# ---- The safe-RL baselines' constraint: J_c and lambda over training --------------------------------
+
+
+def read_constraint(path: Path) -> dict:
+    """constraint_log.csv (baselines.py) -> arrays per column: step, J_c, lambda (CPO: cpo_case, trial)."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        if rows and not {"step", "J_c"} <= set(rows[0]):
+            fail(f"{path} lacks the columns step, J_c: is it a baselines.py constraint_log.csv?")
+        return {k: np.array([float(r[k]) for r in rows]) for k in (rows[0] if rows else ("step", "J_c"))}
+    except (OSError, ValueError, TypeError) as e:
+        fail(f"cannot read {path}: {e}")
+
+
+def constraint(args):
+    """J_c (the mean cost of the last 50 episodes) against the limit d, and lambda, over training steps; the
+    mean over seeds with a min-max band. Also a markdown table of what lambda did, per run."""
+    logs = defaultdict(dict)
+    for path in sorted(args.runs.glob("*/constraint_log.csv")) if args.runs.is_dir() else []:
+        m = RUN_NAME.match(path.parent.name)
+        if m and m["scenario"] in SCENARIOS:
+            logs[m["scenario"], m["algo"]][int(m["seed"])] = read_constraint(path)
+    logs = {k: {seed: log for seed, log in v.items() if len(log["step"])} for k, v in logs.items()}
+    logs = {k: v for k, v in logs.items() if v}
+    if not logs:
+        fail(f"no SCENARIO-ALGO-sSEED/constraint_log.csv with an update in {args.runs}")
+    d = baselines.SafeRLConfig.cost_limit
+    scenarios = [s for s in SCENARIOS if any(sc == s for sc, _ in logs)]
+    fig, axes = plt.subplots(2, len(scenarios), figsize=(6.5 * len(scenarios), 7), squeeze=False, sharex="col")
+    lines = ["| scenario | model | seed | updates | J_c at the end | lambda: max | at the end | updates with lambda > 0 |",
+             "|---|---|---|---|---|---|---|---|"]
+    for col, scenario in enumerate(scenarios):
+        end = max(int(log["step"].max()) for (sc, _), seeds in logs.items() if sc == scenario for log in seeds.values())
+        x = np.linspace(0, end, 200)
+        for algo in [a for a in ORDER if (scenario, a) in logs]:
+            seeds = logs[scenario, algo]
+            for row, key in enumerate(("J_c", "lambda")):
+                have = [log for log in seeds.values() if key in log]
+                if not have:
+                    continue
+                curves = np.array([np.where((x >= log["step"][0]) & (x <= log["step"][-1]), np.interp(x, log["step"], log[key]),
+                                             np.nan) for log in have])  # each seed where it has updates
+                mean, low, high = over_seeds(curves)
+                axes[row, col].fill_between(x, low, high, color=COLORS[algo], alpha=0.18, linewidth=0)
+                axes[row, col].plot(x, mean, color=COLORS[algo], lw=1.8, label=f"{name(algo)} ({len(have)} seed{'s' * (len(have) > 1)})")
+            for seed, log in sorted(seeds.items()):
+                lam = log.get("lambda")
+                lines.append(f"| {scenario} | {name(algo)} | {seed} | {len(log['step'])} | {log['J_c'][-1]:.3f} | "
+                             + (f"{lam.max():.3f} | {lam[-1]:.3f} | {np.mean(lam > 0):.2f} |" if lam is not None else "- | - | - |"))
+        axes[0, col].axhline(d, color="k", ls="--", lw=1.2, label=f"the limit d = {d}")
+        axes[0, col].set_title(f"{scenario.capitalize()} scenario")
+        axes[0, col].set_ylabel("J_c: collisions per episode\n(last 50 episodes)")
+        axes[1, col].set_ylabel("Lagrange multiplier lambda")
+        axes[1, col].set_xlabel("training step (simulator steps)")
+        for ax in axes[:, col]:
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", frameon=False)
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0), useMathText=True)
+    fig.suptitle("The safe-RL baselines' constraint over training (CPO has no multiplier)", fontsize=13)
+    fig.tight_layout()
+    save(fig, args.out)
+    text = "\n".join(lines)
+    print(text)
+    return text
+
+
 # ---- Command line ----------------------------------------------------------------------------------
 
 
@@ -639,6 +710,9 @@ def parse_args(argv=None):
         else:
             c.add_argument("--eval", type=Path, required=True, help="eval.json of the run (tarl.py)")
             c.add_argument("--pick", type=int, default=0, help="which collision, counted from 0 in the order of eval.json")
+    k = sub.add_parser("constraint", help="J_c and lambda of the safe-RL rows over training, and a table")
+    k.add_argument("--runs", type=Path, default=ROOT / "results" / "runs", help="folder of SCENARIO-ALGO-sSEED runs")
+    k.add_argument("--out", type=Path, default=ROOT / "results" / "fig_constraint.png")
     b = sub.add_parser("beta", help="Sec. 5.5: 1 - beta and the timings, a markdown table")
     b.add_argument("--eval", type=Path, nargs="+", required=True)
     b.add_argument("--out", type=Path, help="also write the table here")
@@ -647,7 +721,7 @@ def parse_args(argv=None):
 
 def main(argv=None):
     args = parse_args(argv)
-    return {"training": training, "case": case, "failure": failure, "beta": beta}[args.command](args)
+    return {"training": training, "case": case, "failure": failure, "beta": beta, "constraint": constraint}[args.command](args)
 
 
 if __name__ == "__main__":
