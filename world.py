@@ -286,7 +286,7 @@ class DrivingEnv:
         self.rng = np.random.default_rng()
         self.running = self.ego_alive = self.checked = False
         self.tasks: list[dict] | None = None  # the ego's routes, read from SUMO at the first start
-        self.jam_removals = 0  # humans removed from a gridlock (_forget_arrived), since this env was made
+        self.jam_removals = 0  # humans removed from a gridlock (_after_sumo_step), since this env was made
 
     def _start(self, seed: int):
         c, sim = self.cfg, self.sim
@@ -338,7 +338,7 @@ class DrivingEnv:
         for _ in range(round(seconds / self.cfg.dt)):
             self._spawn_humans()
             self.sim.simulationStep()
-            self._forget_arrived()
+            self._after_sumo_step()
 
     @property
     def spawn_gap(self) -> float:
@@ -527,7 +527,7 @@ class DrivingEnv:
         sim.vehicle.setSpeed(EGO, v_cmd)
         self._spawn_humans()
         sim.simulationStep()
-        self._forget_arrived()
+        self._after_sumo_step()
         self._read()
         collided = self._collided()
         arrived = not collided and self.s >= self.task["dest"]
@@ -580,7 +580,7 @@ class DrivingEnv:
         return all(self.sim.vehicle.getLanePosition(v) > self.cfg.spawn_clear + self.cfg.length
                    for v in self.sim.lane.getLastStepVehicleIDs(lane))
 
-    def _forget_arrived(self):
+    def _after_sumo_step(self):
         """After every SUMO step: forget the humans who left, and once a second clear the junctions of
         humans stuck in them for jam_time (a gridlock of humans inside the junction lasts for good,
         with the ego driving through a frozen world: at the intersection from ~400 s on)."""
