@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+import tarl  # noqa: E402
 SCENARIOS = ("intersection", "roundabout")
 ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
 # TARL's cell is the default command: it evaluates Lattice-IDM (and TARL's step-1 model) on the same
@@ -45,7 +47,7 @@ PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.73
                         "lattice-idm": (0.797, 0.030, 27.293, 0.291)}}
 
 
-STEPS = 100_000  # the default budget of every learned row (tarl.TrainConfig.steps)
+STEPS = tarl.TrainConfig.steps  # the default budget of every learned row
 
 
 def cell_name(scenario, algo, seed, steps) -> str:
@@ -74,9 +76,9 @@ def publish(scenario, algo, seed, args):
     name = cell_name(scenario, algo, seed, args.steps)
     src, dst = args.work / name, args.results / "runs" / name
     dst.mkdir(parents=True, exist_ok=True)
-    for name in ("train_log.csv", "constraint_log.csv") + ("policy.pt",) * (seed == 0):
-        if (src / name).exists():
-            shutil.copy(src / name, dst / name)
+    for file in ("train_log.csv", "constraint_log.csv") + ("policy.pt",) * (seed == 0):
+        if (src / file).exists():
+            shutil.copy(src / file, dst / file)
     shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
     collect(args)
     if args.commit:
