@@ -198,3 +198,25 @@ def test_two_drivers_meet_the_same_test_cases():
     assert [ep["start"] for ep in planner_only] == [ep["start"] for ep in reckless]
     assert len({ep["start"] for ep in planner_only}) == 4  # four different cases
     assert [ep["steps"] for ep in planner_only] != [ep["steps"] for ep in reckless]  # the drivers differ
+
+
+def test_a_case_starts_the_same_whatever_ran_before():
+    """A test case is its saved state alone: what the simulation did before the load must not change how
+    the case begins. SUMO 1.28 carries something of the run before a loadState over: loaded after an
+    episode that had just played the case's first step, a case let a waiting human enter a step late."""
+    import tarl
+    env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
+
+    def start(case):  # every vehicle's position after the reset, and the fingerprint
+        env.reset(options={"case": case})
+        return sorted((v, *np.round(env.sim.vehicle.getPosition(v), 3)) for v in env.sim.vehicle.getIDList()), env.fingerprint()
+
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            cases = env.record_cases(tarl.test_seed(0, 1), 4, folder)
+            # after the recording; after an episode that ended at the case's first step; after another case
+            starts = [start(cases[3]), start(cases[3]), start(cases[0]), start(cases[3])]
+    finally:
+        env.close()
+    assert starts[2] != starts[0]
+    assert starts[0] == starts[1] == starts[3]

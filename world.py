@@ -288,7 +288,7 @@ class DrivingEnv:
         self.tasks: list[dict] | None = None  # the ego's routes, read from SUMO at the first start
         self.jam_removals = 0  # humans removed from a gridlock (_after_sumo_step), since this env was made
 
-    def _start(self, seed: int):
+    def _start(self, seed: int, warmup: bool = True):
         c, sim = self.cfg, self.sim
         args = ["-n", str(self.net_file), "-r", str(self.route_file), "--step-length", str(c.dt),
                 "--seed", str(seed), "--default.carfollowmodel", "IDM", "--collision.check-junctions", "true",
@@ -331,7 +331,8 @@ class DrivingEnv:
         self.capped: set[str] = set()  # yielding humans whose speed is capped
         self.tasks = self.tasks or self._ego_tasks()
         self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
-        self._run_traffic(c.warmup)
+        if warmup:
+            self._run_traffic(c.warmup)
 
     def _run_traffic(self, seconds: float):
         """The humans alone, no ego, for this long."""
@@ -373,11 +374,11 @@ class DrivingEnv:
         return cases
 
     def _load_case(self, case: dict):
-        # SUMO 1.28 keeps a lane that was occupied before loadState blocked for the vehicle then
-        # inserted on it (it never moves): empty the network for one step first
-        for v in [*self.sim.vehicle.getIDList(), *self.sim.simulation.getPendingVehicles()]:
-            self.sim.vehicle.remove(v)
-        self.sim.simulationStep()
+        # loadState keeps something of the run before it (SUMO 1.28, PAPER.md): a lane that held vehicles
+        # can keep the one then inserted on it from moving, and after an episode that had played the case's
+        # first step a waiting human entered a step late. A new simulation (~10 ms) before each load makes
+        # a case's start the same whatever ran before.
+        self._start(case["seed"][0], warmup=False)
         self.sim.simulation.loadState(case["file"])
         self.humans, self.n_humans, self.decisions, self.capped = dict(case["humans"]), case["n_humans"], {}, set()
         for h in self.sim.vehicle.getIDList():
