@@ -823,6 +823,8 @@ def main(argv=None):
     torch.set_num_threads(args.threads)
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # a kill saves like Ctrl-C
     cfg, rows = EnvConfig(scenario=args.scenario), []
+    code = subprocess.run(["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
+                          capture_output=True, text=True).stdout.strip() or None  # the commit this run starts from
     env = DrivingEnv(cfg, gui=args.gui)
     try:
         if args.algo != "lattice-idm":
@@ -851,8 +853,6 @@ def main(argv=None):
     print(table(results))
     if "beta_minus" in results[0]:
         print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
-    code = subprocess.run(["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
-                          capture_output=True, text=True).stdout.strip() or None  # the commit the numbers came from
     (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code, rows=results)))
     print(f"wrote {args.out / 'eval.json'}")
 
