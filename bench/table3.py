@@ -20,6 +20,7 @@ import shutil
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -140,6 +141,25 @@ def cell_text(stats, digits):
     return f"{mean:.{digits}f} +- {seed_std:.{digits}f} ({round_std:.{digits}f}, {n})"
 
 
+def same_cases(found: dict) -> list[str]:
+    """Per budget, scenario and seed: did every row meet the same test cases? A case's start fingerprint
+    (eval.json) against the one most rows had for it."""
+    starts = {}
+    for budget, cells in found.items():
+        for (scenario, algo), seeds in cells.items():
+            for seed, row in seeds.items():
+                starts.setdefault((budget, scenario, seed), {})[algo] = [case["start"] for case in row["cases"]]
+    lines = []
+    for (budget, scenario, seed), rows in sorted(starts.items()):
+        common = [Counter(case).most_common(1)[0][0] for case in zip(*rows.values())]
+        odd = {algo: sum(a != b for a, b in zip(s, common)) for algo, s in rows.items()}
+        odd = ", ".join(f"{NAMES[algo]} {n}" for algo, n in odd.items() if n)
+        lines.append(f"- {scenario}, seed {seed}" + (f", {budget:,} steps" if budget != STEPS else "") +
+                     f": {len(rows)} rows, {len(common)} cases; " + (f"cases that began differently: {odd}" if odd
+                                                                      else "every row met the same cases"))
+    return lines
+
+
 def collect(args):
     """Rebuild results/table3.md from the eval.json files under results/runs."""
     found = load(args.results)
@@ -164,6 +184,8 @@ def collect(args):
                          + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
                          + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.2f} +- {paper[3]:.2f} |" if paper else " | - | - |"))
         lines.append("")
+    lines += ["## The same test cases for every row", "", "Each case's start fingerprint in eval.json, against the one "
+              "most rows of that seed had for it:", "", *same_cases(found), ""]
     (args.results / "table3.md").write_text("\n".join(lines))
     return found
 
