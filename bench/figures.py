@@ -175,7 +175,8 @@ def training(args):
                 mean, low, high = over_seeds(np.array([binned(log, key, bin_steps, n_bins) for log in seeds.values()]))
                 ax = axes[row, col]
                 ax.fill_between(x, low, high, color=color, alpha=0.18, linewidth=0)
-                ax.plot(x, mean, color=color, lw=1.8, marker="o" if np.isfinite(mean).sum() < 3 else None, ms=4)
+                ax.plot(x, mean, color=color, lw=1.8, ls="--" if algo in ABLATIONS else "-",  # dashed: not a row of Table 3
+                        marker="o" if np.isfinite(mean).sum() < 3 else None, ms=4)
             drawn.setdefault(algo, set()).add(len(seeds))
             if algo.startswith("tarl"):
                 for log in seeds.values():
@@ -194,7 +195,7 @@ def training(args):
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
             ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0), useMathText=True)
-    handles = [Line2D([], [], color=COLORS.get(a, "C0"), lw=2,
+    handles = [Line2D([], [], color=COLORS.get(a, "C0"), lw=2, ls="--" if a in ABLATIONS else "-",
                       label=f"{name(a)} ({'/'.join(map(str, sorted(n)))} seed{'s' * (max(n) > 1)})") for a, n in drawn.items()]
     if step_ones:
         handles.append(Line2D([], [], color="k", ls=":", lw=1.3, label="end of TARL's step 1 (plain SAC)"))
