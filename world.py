@@ -329,8 +329,9 @@ class DrivingEnv:
         self.humans: dict[str, np.ndarray] = {}  # id -> alpha1..4, svo, decel, accel, game speed (_spawn_humans)
         self.decisions: dict[str, int] = {}  # humans now playing the game -> CROSS / YIELD
         self.capped: set[str] = set()  # yielding humans whose speed is capped
-        self.tasks = self.tasks or self._ego_tasks()
-        self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
+        if self.tasks is None:  # the network's, read once (every test case starts a new simulation)
+            self.tasks = self._ego_tasks()
+            self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
         if warmup:
             self._run_traffic(c.warmup)
 
