@@ -56,19 +56,18 @@ def cell_name(scenario, algo, seed, steps) -> str:
     return f"{scenario}-{algo}-s{seed}" + (f"-{steps // 1000}k" if steps != STEPS else "")
 
 
-def cells(algos, seeds):
+def cells(algos, seeds, scenarios=SCENARIOS):
     """The grid, seed by seed, so that a first complete table comes early."""
-    return [(scenario, algo, seed) for seed in seeds for algo in algos for scenario in SCENARIOS]
+    return [(scenario, algo, seed) for seed in seeds for algo in algos for scenario in scenarios]
 
 
-def command(scenario, algo, seed, args, jobs) -> list[str]:
+def command(scenario, algo, seed, args, threads) -> list[str]:
     """The cell's command, run from the repository's root (paths relative to it where they can be)."""
     out = args.work / cell_name(scenario, algo, seed, args.steps)
     shown = out.relative_to(ROOT) if out.is_relative_to(ROOT) else out
     cmd = ["python", "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--steps", str(args.steps),
            "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", str(shown),
-           "--eval-rows", "all" if algo == "tarl" else "trained", "--threads", str(2 // jobs or 1),
-           "--workers", str(2 // jobs or 1)]
+           "--eval-rows", "all" if algo == "tarl" else "trained", "--threads", str(threads), "--workers", str(threads)]
     return cmd + ["--resume"] * (out / "ckpt.pt").exists()
 
 
@@ -102,7 +101,7 @@ def run_grid(todo, args):
             out = args.work / cell_name(*cell, args.steps)
             out.mkdir(parents=True, exist_ok=True)
             log = open(out / "log.txt", "a")
-            running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.jobs)[1:]], stdout=log, stderr=subprocess.STDOUT,
+            running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.threads)[1:]], stdout=log, stderr=subprocess.STDOUT,
                                               cwd=ROOT), log, time.time())
             print(f"started {' '.join(map(str, cell))} ({len(todo)} waiting)", flush=True)
         time.sleep(5)
@@ -194,24 +193,31 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
     p.add_argument("--steps", type=int, default=STEPS, help="training steps of every learned row (another budget's "
                    "cells are S-A-sK-500k, reported apart)")
     p.add_argument("--rounds", type=int, default=10)
     p.add_argument("--cases", type=int, default=200)
-    p.add_argument("--jobs", type=int, default=2, help="cells side by side (each with 2 // jobs torch threads)")
+    p.add_argument("--jobs", type=int, default=2, help="cells side by side")
+    p.add_argument("--threads", type=int, help="torch threads and evaluation workers of each cell (default: 2 // "
+                   "jobs, at least 1; give 1 when another grid runs beside this one)")
     p.add_argument("--work", type=Path, default=ROOT / "runs" / "grid", help="the cells' run directories")
     p.add_argument("--results", type=Path, default=ROOT / "results")
     p.add_argument("--commit", action="store_true", help="git commit each finished cell's results")
-    p.add_argument("--print-commands", action="store_true", help="print one command per cell and exit")
+    p.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell (2 threads "
+                   "each unless --threads) and exit")
     p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md")
     args = p.parse_args()
+    if args.jobs < 1 or (args.threads is not None and args.threads < 1):
+        p.error("--jobs and --threads must be at least 1")
     if args.collect_only:
         collect(args)
         return print((args.results / "table3.md").read_text())
-    todo = [c for c in cells(args.algos, args.seeds)
+    todo = [c for c in cells(args.algos, args.seeds, args.scenarios)
             if not (args.results / "runs" / cell_name(*c, args.steps) / "eval.json").exists()]
     if args.print_commands:
-        return print("\n".join(" ".join(command(*c, args, 1)) for c in todo))
+        return print("\n".join(" ".join(command(*c, args, args.threads or 2)) for c in todo))
+    args.threads = args.threads or max(2 // args.jobs, 1)
     print(f"{len(todo)} cells to run, {args.jobs} at a time", flush=True)
     run_grid(todo, args)
     print((args.results / "table3.md").read_text())
