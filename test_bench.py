@@ -24,3 +24,65 @@ def test_speed_quick_prints_every_number_the_issue_asks_for(capsys):
     assert r["train_ppo_lag_steps_per_s"] > 0 and r["train_cpo_steps_per_s"] > 0
     assert r["planner_candidates"] > 1
     assert 0.3 < r["sac_gflop_per_update"] < 2.0  # Table 2's sizes: about 0.64 GFLOP per update
+
+
+import table3  # noqa: E402
+
+
+def _row(algo, seed, success, starts):
+    stat = lambda m: {"mean": m, "std": 0.01}  # noqa: E731
+    return {"algo": algo, "train_steps": 100, "seed": seed, "success_rate": stat(success),
+            "collision_rate": stat(1 - success), "timeout_rate": stat(0.0), "crossing_time": stat(20.0),
+            "crossing_time_all": stat(20.0), "cases": [{"start": s} for s in starts]}
+
+
+def _results(tmp_path, cells):
+    """A results/ tree with one eval.json per (cell name, scenario, seed, rows)."""
+    for name, scenario, seed, rows in cells:
+        (tmp_path / "runs" / name).mkdir(parents=True)
+        (tmp_path / "runs" / name / "eval.json").write_text(json.dumps({"scenario": scenario, "seed": seed, "rows": rows}))
+    return table3.load(tmp_path)
+
+
+def test_table3_averages_over_seeds_keeps_budgets_apart_and_finds_odd_starts(tmp_path):
+    found = _results(tmp_path, [
+        ("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.8, "abc")]),
+        ("roundabout-sac-s1", "roundabout", 1, [_row("sac", 1, 0.9, "def")]),
+        ("roundabout-tarl-s1", "roundabout", 1, [_row("tarl", 1, 0.7, "dxf"), _row("lattice-idm", 1, 0.5, "def")]),
+        ("roundabout-tarl-s0-500k", "roundabout", 0, [_row("tarl", 0, 0.95, "abc")])])
+    assert table3.cell_name("roundabout", "tarl", 0, 500_000) == "roundabout-tarl-s0-500k"
+    assert table3.cell_name("roundabout", "tarl", 0, table3.STEPS) == "roundabout-tarl-s0"
+    assert set(found) == {table3.STEPS, 500_000}
+    mean, seed_std, round_std, n = table3.over_seeds(found[table3.STEPS][("roundabout", "sac")], "success_rate")
+    assert (round(mean, 6), round(seed_std, 6), round_std, n) == (0.85, 0.05, 0.01, 2)
+    # seed 1: TARL's second case began differently from SAC's and Lattice-IDM's
+    assert any("seed 1" in line and "TARL 1" in line for line in table3.same_cases(found))
+    assert any("seed 0" in line and "every row met the same cases" in line for line in table3.same_cases(found))
+
+
+def test_table3_rewrites_only_the_readme_blocks_between_its_markers(tmp_path):
+    found = _results(tmp_path, [("intersection-tarl-s0", "intersection", 0, [_row("tarl", 0, 0.9, "a")]),
+                                ("intersection-tarl-s1", "intersection", 1, [_row("tarl", 1, 0.8, "a")])])
+    readme = tmp_path / "README.md"
+    readme.write_text("before\n<!-- table3.py results -->\nold table\n<!-- /table3.py -->\nbetween\n"
+                      "<!-- table3.py timing -->\n<!-- /table3.py -->\nafter\n")
+    table3.write_readme(found, readme)
+    once = readme.read_text()
+    table3.write_readme(found, readme)
+    assert readme.read_text() == once  # idempotent
+    assert "old table" not in once and once.startswith("before\n") and once.endswith("after\n") and "\nbetween\n" in once
+    tarl_lines = [line for line in once.splitlines() if line.startswith("| TARL |")]
+    assert len(tarl_lines) == 2  # both blocks; the paper's values only in the results block
+    # the only row, so the best (bold)
+    assert tarl_lines[0].startswith("| TARL | 2 | **0.850 +- 0.050 (0.010)** |") and "0.881 (0.021)" in tarl_lines[0]
+    assert "0.881" not in tarl_lines[1]
+
+
+def test_table3_commands_resume_a_cell_with_a_checkpoint(tmp_path):
+    args = table3.argparse.Namespace(work=tmp_path, steps=500_000, rounds=10, cases=200)
+    cmd = table3.command("roundabout", "tarl", 0, args, 1)
+    assert "--resume" not in cmd and cmd[cmd.index("--threads") + 1] == "1" and cmd[cmd.index("--eval-rows") + 1] == "all"
+    (tmp_path / "roundabout-tarl-s0-500k").mkdir()
+    (tmp_path / "roundabout-tarl-s0-500k" / "ckpt.pt").write_bytes(b"")
+    assert table3.command("roundabout", "tarl", 0, args, 1)[-1] == "--resume"
+    assert [c[0] for c in table3.cells(["tarl"], [0], ["roundabout"])] == ["roundabout"]

@@ -3,6 +3,7 @@
     python bench/table3.py                    # run or resume the grid, 2 cells side by side
     python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
     python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
+    python bench/table3.py --collect-only --readme   # and the README's result tables
 
 A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
 checkpoints), evaluated on the fixed test cases of seed K; TARL's cell is the default command, which
@@ -159,6 +160,48 @@ def same_cases(found: dict) -> list[str]:
     return lines
 
 
+README_ROWS = {"results": ("tarl", "tarl-step1", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo"),
+               "timing": ("tarl", "tarl-fixed-t", "tarl-random-t", "sac", "lattice-idm")}
+
+
+def readme_block(found: dict, algos, paper: bool) -> list[str]:
+    """The README's tables at the default budget, one per scenario: mean +- std over seeds, in brackets the mean
+    per-round std (success and crossing time), the best success in bold, and Table 3's values if `paper`."""
+    def text(stats, digits, rounds):
+        mean, seed_std, round_std, n = stats or (np.nan,) * 4
+        return "-" if stats is None else (f"{mean:.{digits}f}" + f" +- {seed_std:.{digits}f}" * (n > 1)
+                                          + f" ({round_std:.{digits}f})" * rounds)
+    lines = []
+    for scenario in SCENARIOS:
+        lines += [f"**{scenario.capitalize()}**", "", "| model | seeds | success | collision | timeout | crossing [s] |"
+                  + " paper success | paper crossing [s] |" * paper, "|---|---|---|---|---|---|" + "---|---|" * paper]
+        table = {algo: found.get(STEPS, {}).get((scenario, algo)) for algo in algos}
+        table = {algo: {k: over_seeds(rows, k) for k in ("success_rate", "collision_rate", "timeout_rate", "crossing_time")}
+                 | {"seeds": len(rows)} for algo, rows in table.items() if rows}
+        best = max((stats["success_rate"] or (0,))[0] for stats in table.values()) if table else None
+        for algo, stats in table.items():
+            ref, bold = PAPER[scenario].get(algo), "**" * ((stats["success_rate"] or (None,))[0] == best)
+            lines.append(f"| {NAMES[algo]} | {stats['seeds']} | {bold}{text(stats['success_rate'], 3, True)}{bold} | "
+                         f"{text(stats['collision_rate'], 3, False)} | {text(stats['timeout_rate'], 3, False)} | "
+                         f"{text(stats['crossing_time'], 1, True)} |"
+                         + (f" {ref[0]:.3f} ({ref[1]:.3f}) | {ref[2]:.3f} ({ref[3]:.3f}) |" if ref else " - | - |") * paper)
+        lines.append("")
+    return lines[:-1]
+
+
+def write_readme(found: dict, readme: Path):
+    """Replace each block between `<!-- table3.py NAME -->` and `<!-- /table3.py -->` in the README."""
+    text = readme.read_text()
+    for name, algos in README_ROWS.items():
+        begin, end = f"<!-- table3.py {name} -->", "<!-- /table3.py -->"
+        head, found_begin, rest = text.partition(begin)
+        if not found_begin:
+            continue
+        text = head + begin + "\n" + "\n".join(readme_block(found, algos, name == "results")) + "\n" + end \
+            + rest.partition(end)[2]
+    readme.write_text(text)
+
+
 def collect(args):
     """Rebuild results/table3.md from the eval.json files under results/runs."""
     found = load(args.results)
@@ -181,11 +224,13 @@ def collect(args):
             lines.append(f"| {NAMES[algo]} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | "
                          + " | ".join(cell_text(over_seeds(rows, k), 3) for k in ("success_rate", "collision_rate", "timeout_rate"))
                          + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
-                         + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.2f} +- {paper[3]:.2f} |" if paper else " | - | - |"))
+                         + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.3f} +- {paper[3]:.3f} |" if paper else " | - | - |"))
         lines.append("")
     lines += ["## The same test cases for every row", "", "Each case's start fingerprint in eval.json, against the one "
               "most rows of that seed had for it:", "", *same_cases(found), ""]
     (args.results / "table3.md").write_text("\n".join(lines))
+    if args.readme:
+        write_readme(found, ROOT / "README.md")
     return found
 
 
@@ -207,6 +252,8 @@ def main():
     p.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell (2 threads "
                    "each unless --threads) and exit")
     p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md")
+    p.add_argument("--readme", action="store_true", help="also rewrite the README's result tables (between their "
+                   "<!-- table3.py --> markers)")
     args = p.parse_args()
     if args.jobs < 1 or (args.threads is not None and args.threads < 1):
         p.error("--jobs and --threads must be at least 1")
