@@ -86,3 +86,18 @@ def test_table3_commands_resume_a_cell_with_a_checkpoint(tmp_path):
     (tmp_path / "roundabout-tarl-s0-500k" / "ckpt.pt").write_bytes(b"")
     assert table3.command("roundabout", "tarl", 0, args, 1)[-1] == "--resume"
     assert [c[0] for c in table3.cells(["tarl"], [0], ["roundabout"])] == ["roundabout"]
+
+
+def test_table3_a_cell_is_run_by_one_grid_only_and_never_again_once_done(tmp_path):
+    args = table3.argparse.Namespace(work=tmp_path / "grid", results=tmp_path / "results", steps=table3.STEPS)
+    cell = ("intersection", "sac", 1)
+    first = table3.claim(cell, args)
+    assert first is not None and first[0] == tmp_path / "grid" / "intersection-sac-s1"
+    assert table3.claim(cell, args) is None  # a second grid process skips it while the first holds it
+    first[1].close()
+    second = table3.claim(cell, args)
+    assert second is not None  # released when the first ends
+    second[1].close()
+    (args.results / "runs" / "intersection-sac-s1").mkdir(parents=True)
+    (args.results / "runs" / "intersection-sac-s1" / "eval.json").write_text("{}")
+    assert table3.claim(cell, args) is None  # done

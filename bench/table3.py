@@ -15,6 +15,7 @@ The table reports each number as the mean +- std over seeds of each seed's mean 
 beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value.
 """
 import argparse
+import fcntl
 import json
 import re
 import shutil
@@ -93,20 +94,39 @@ def publish(scenario, algo, seed, args):
             time.sleep(5)
 
 
+def claim(cell, args):
+    """The cell's run directory, locked for this process (the lock goes when it ends), or None if the cell is done
+    or another grid process runs it: several grids on one machine or a shared disk share the cells out."""
+    name = cell_name(*cell, args.steps)
+    out = args.work / name
+    out.mkdir(parents=True, exist_ok=True)
+    lock = open(out / "lock", "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return lock.close()
+    if (args.results / "runs" / name / "eval.json").exists():
+        return lock.close()
+    return out, lock
+
+
 def run_grid(todo, args):
     """Run the cells, `--jobs` at a time; each one's output goes to its own log.txt."""
     running = {}
     while todo or running:
         while todo and len(running) < args.jobs:
             cell = todo.pop(0)
-            out = args.work / cell_name(*cell, args.steps)
-            out.mkdir(parents=True, exist_ok=True)
+            claimed = claim(cell, args)
+            if claimed is None:
+                print(f"skipped {' '.join(map(str, cell))}: done or run by another grid", flush=True)
+                continue
+            out, lock = claimed
             log = open(out / "log.txt", "a")
             running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.threads)[1:]], stdout=log, stderr=subprocess.STDOUT,
-                                              cwd=ROOT), log, time.time())
+                                              cwd=ROOT), log, time.time(), lock)
             print(f"started {' '.join(map(str, cell))} ({len(todo)} waiting)", flush=True)
         time.sleep(5)
-        for cell, (proc, log, t0) in list(running.items()):
+        for cell, (proc, log, t0, lock) in list(running.items()):
             if proc.poll() is not None:
                 log.close()
                 del running[cell]
@@ -114,6 +134,7 @@ def run_grid(todo, args):
                       f"{(time.time() - t0) / 60:.1f} min", flush=True)
                 if proc.returncode == 0:
                     publish(*cell, args)
+                lock.close()
 
 
 def load(results: Path) -> dict:
