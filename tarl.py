@@ -432,7 +432,7 @@ class TrainLog:
     def __init__(self, out: Path | None, total: int, log=print):
         self.out, self.total, self.print, self.rows = out, total, log, []
         self.recent = collections.deque(maxlen=20)  # the last real episodes
-        self.t0, self.step0 = time.time(), None
+        self.clock = collections.deque(maxlen=6)  # (time, step) of the last calls: the rate of the last ~10,000 steps
 
     def episode(self, step: int, loop: str, ret: float, info: dict, betas: list):
         row = [step, loop, round(ret, 3), int(info["arrival"]), int(info["collision"]), int(info["timeout"]),
@@ -442,10 +442,10 @@ class TrainLog:
             self.recent.append(row)
 
     def progress(self, step: int, phase: str, extra: str = ""):
-        if self.step0 is None:  # the first call starts the clock
-            self.t0, self.step0 = time.time(), step
+        self.clock.append((time.time(), step))
+        if len(self.clock) < 2:  # the first call starts the clock
             return
-        rate = (step - self.step0) / max(time.time() - self.t0, 1e-9)
+        rate = (step - self.clock[0][1]) / max(self.clock[-1][0] - self.clock[0][0], 1e-9)
         succ, coll, ret = (np.mean([r[k] for r in self.recent]) if self.recent else np.nan for k in (3, 4, 2))
         self.print(f"step {step:>7}/{self.total} [{phase}] {rate:5.0f} steps/s, ETA {max(0, self.total - step) / max(rate, 1e-9) / 60:5.1f} "
                    f"min | last {len(self.recent)} real episodes: success {succ:.2f}, collision {coll:.2f}, return {ret:6.1f}{extra}")

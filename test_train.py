@@ -106,3 +106,13 @@ def test_the_command_line_evaluates_the_planner_and_writes_every_case(tmp_path, 
     assert row["algo"] == "lattice-idm" and [c["case"] for c in row["cases"]] == [0, 1, 2]
     assert {c["outcome"] for c in row["cases"]} <= {"arrival", "collision", "timeout"}
     assert "Lattice-IDM" in capsys.readouterr().out
+
+
+def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypatch):
+    now, lines = [0.0], []
+    monkeypatch.setattr(tarl.time, "time", lambda: now[0])
+    log = tarl.TrainLog(None, 100_000, log=lines.append)
+    for step in range(2_000, 22_001, 2_000):  # 1,000 steps/s for 4,000 steps, then 100 steps/s
+        log.progress(step, "x")
+        now[0] += 2.0 if step < 6_000 else 20.0
+    assert " 100 steps/s, ETA  13.0 min" in lines[-1]  # (100,000 - 22,000) / 100 s
