@@ -189,9 +189,10 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
     """The README's tables at the default budget, one per scenario: mean +- std over seeds, in brackets the mean
     per-round std (success and crossing time), the best success in bold, and Table 3's values if `paper`."""
     def text(stats, digits, rounds):
-        mean, seed_std, round_std, n = stats or (np.nan,) * 4
-        return "-" if stats is None else (f"{mean:.{digits}f}" + f" +- {seed_std:.{digits}f}" * (n > 1)
-                                          + f" ({round_std:.{digits}f})" * rounds)
+        if stats is None:
+            return "-"
+        mean, seed_std, round_std, n = stats
+        return f"{mean:.{digits}f}" + f" +- {seed_std:.{digits}f}" * (n > 1) + f" ({round_std:.{digits}f})" * rounds
     lines = []
     for scenario in SCENARIOS:
         lines += [f"**{scenario.capitalize()}**", "", "| model | seeds | success | collision | timeout | crossing [s] |"
