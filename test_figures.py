@@ -87,6 +87,14 @@ def test_training_draws_real_episodes_of_a_tiny_log_and_rejects_a_missing_folder
     (tmp_path / "empty").mkdir()
     with pytest.raises(SystemExit, match="no SCENARIO-ALGO-sSEED/train_log.csv"):
         figures.main(["training", "--runs", str(tmp_path / "empty")])
+    # another budget's runs (bench/table3.py names them S-A-sK-500k) are drawn apart, not into the default's
+    write_log(runs / "intersection-tarl-s0-500k", [(100, "step1", 10, 1, 0, 0, 9.0, ""), (900, "real", 40, 1, 0, 0, 8.0, 0.3)])
+    assert set(figures.find_runs(runs)) == {("intersection", "tarl"), ("intersection", "sac")}
+    assert figures.find_runs(runs)[("intersection", "tarl")][0]["step"].max() == 700
+    assert list(figures.find_runs(runs, "500k")) == [("intersection", "tarl")]
+    figures.main(["training", "--runs", str(runs), "--budget", "500k", "--out", str(out)])
+    with pytest.raises(SystemExit, match="no SCENARIO-ALGO-sSEED-50k/train_log.csv"):
+        figures.main(["training", "--runs", str(runs), "--budget", "50k", "--out", str(out)])
 
 
 def eval_json(path: Path, outcomes, **row) -> Path:

@@ -71,7 +71,7 @@ COLORS = {"tarl": "#d62728", "sac": "#1f77b4", "sac-lattice": "#2ca02c", "sac-la
           "ppo-lag": "#e377c2", "cpo": "#7f7f7f", "tarl-fixed-t": "#ff7f0e", "tarl-random-t": "#17becf"}
 # Sec. 5.5 of the paper: mean 1 - beta over all steps, within 3 s and 1 s before a collision
 PAPER_BETA_MINUS = {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
-RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)$")
+RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)(?:-(?P<budget>\d+k))?$")  # bench/table3.py
 ACTOR, BASE, EXECUTED, TIMING = "#1f77b4", "#2ca02c", "#ff7f0e", "#6a3d9a"  # Fig. 6's colours
 DPI = 130
 GAME_COLORS = {world.CROSS: "#d95f02", world.YIELD: "#1b9e77"}  # edges of the humans in the game with the ego
@@ -107,8 +107,9 @@ def read_log(path: Path) -> dict:
         fail(f"cannot read {path}: {e}")
 
 
-def find_runs(folder: Path) -> dict:
-    """{(scenario, algo): {seed: log}} of every SCENARIO-ALGO-sSEED/train_log.csv in folder."""
+def find_runs(folder: Path, budget: str | None = None) -> dict:
+    """{(scenario, algo): {seed: log}} of every SCENARIO-ALGO-sSEED/train_log.csv in folder (the default budget),
+    or of every SCENARIO-ALGO-sSEED-BUDGET/train_log.csv (another budget, as 500k)."""
     if not folder.is_dir():
         fail(f"--runs {folder}: no such folder")
     runs = defaultdict(dict)
@@ -117,9 +118,10 @@ def find_runs(folder: Path) -> dict:
         if not m or m["scenario"] not in SCENARIOS:
             progress(f"skipping {path}: its folder is not named SCENARIO-ALGO-sSEED")
             continue
-        runs[m["scenario"], m["algo"]][int(m["seed"])] = read_log(path)
+        if m["budget"] == budget:
+            runs[m["scenario"], m["algo"]][int(m["seed"])] = read_log(path)
     if not runs:
-        fail(f"no SCENARIO-ALGO-sSEED/train_log.csv in {folder}")
+        fail(f"no SCENARIO-ALGO-sSEED{'-' + budget if budget else ''}/train_log.csv in {folder}")
     return runs
 
 
@@ -151,7 +153,7 @@ def over_seeds(curves: np.ndarray):
 
 
 def training(args):
-    runs = find_runs(args.runs)
+    runs = find_runs(args.runs, args.budget)
     if args.bin is not None and args.bin < 1:
         fail("--bin is a number of steps: at least 1")
     ends = [int(log["step"].max()) for seeds in runs.values() for log in seeds.values() if len(log["step"])]
@@ -637,7 +639,7 @@ def constraint(args):
     logs = defaultdict(dict)
     for path in sorted(args.runs.glob("*/constraint_log.csv")) if args.runs.is_dir() else []:
         m = RUN_NAME.match(path.parent.name)
-        if m and m["scenario"] in SCENARIOS:
+        if m and m["scenario"] in SCENARIOS and m["budget"] is None:
             logs[m["scenario"], m["algo"]][int(m["seed"])] = read_constraint(path)
     logs = {k: {seed: log for seed, log in v.items() if len(log["step"])} for k, v in logs.items()}
     logs = {k: v for k, v in logs.items() if v}
@@ -693,6 +695,7 @@ def parse_args(argv=None):
     t = sub.add_parser("training", help="Fig. 5: training curves from train_log.csv files")
     t.add_argument("--runs", type=Path, default=ROOT / "results" / "runs", help="folder of SCENARIO-ALGO-sSEED runs")
     t.add_argument("--out", type=Path, default=ROOT / "results" / "fig5_training.png")
+    t.add_argument("--budget", help="draw the runs of another budget, named SCENARIO-ALGO-sSEED-BUDGET (500k)")
     t.add_argument("--bin", type=int, help="steps per bin (default: 5000, less for runs shorter than 100,000 steps)")
     for command, help_ in (("case", "Fig. 6: one test case, step by step"),
                            ("failure", "Fig. 7: the first test case of an eval.json that ended in a collision")):
