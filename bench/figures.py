@@ -5,7 +5,7 @@ case, step by step), Fig. 7 (a failure case) and the numbers of Sec. 5.5 (1 - be
     python bench/figures.py case --scenario roundabout --load runs/roundabout-tarl-s0/policy.pt --case 17
     python bench/figures.py failure --scenario intersection --load runs/intersection-tarl-s0/policy.pt \\
         --eval runs/intersection-tarl-s0/eval.json
-    python bench/figures.py beta --eval results/runs/*-tarl-s*/eval.json [--out results/sec55_beta.md]
+    python bench/figures.py beta --eval results/runs/*-tarl-s?/eval.json [--out results/sec55_beta.md]
     python bench/figures.py constraint [--runs results/runs] [--out results/fig_constraint.png]
 
 training  Fig. 5: one column per scenario, the episode return and the collision rate over training
