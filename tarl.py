@@ -432,7 +432,7 @@ class TrainLog:
     def __init__(self, out: Path | None, total: int, log=print):
         self.out, self.total, self.print, self.rows = out, total, log, []
         self.recent = collections.deque(maxlen=20)  # the last real episodes
-        self.clock = collections.deque(maxlen=6)  # (time, step) of the last calls: the rate of the last ~10,000 steps
+        self.clock = collections.deque(maxlen=2)  # (time, step) of the last two calls: the rate of the last log_every steps
 
     def episode(self, step: int, loop: str, ret: float, info: dict, betas: list):
         row = [step, loop, round(ret, 3), int(info["arrival"]), int(info["collision"]), int(info["timeout"]),
