@@ -1,5 +1,9 @@
 """Tests of tarl.py: the timing math by hand, Algorithm 1's buffers and blend on the real simulator."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -133,3 +137,14 @@ def test_the_timing_buffer_holds_r_T_and_gamma_to_the_T(trainer):
         assert trainer.D_T.data["rew"][start + i] == pytest.approx(sum(gamma**j * r for j, r in enumerate(rewards)))
         assert trainer.D_T.data["discount"][start + i] == pytest.approx(gamma**k)  # Eq. (9): gamma^T
     assert next(steps, None) is None
+
+
+def test_torch_threads_wait_passively_unless_the_user_says_otherwise():
+    """Spinning OpenMP threads beside another busy process made training ~40x slower (README, Speed)."""
+    show = "import tarl, os; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    here = os.path.dirname(os.path.abspath(__file__))
+    assert subprocess.run([sys.executable, "-c", show], env=env, cwd=here, capture_output=True,
+                          text=True).stdout.strip() == "PASSIVE"
+    assert subprocess.run([sys.executable, "-c", show], env=env | {"OMP_WAIT_POLICY": "ACTIVE"}, cwd=here,
+                          capture_output=True, text=True).stdout.strip() == "ACTIVE"

@@ -38,16 +38,15 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-import torch
-import torch.nn.functional as F
-from torch.utils.flop_counter import FlopCounterMode
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import tarl  # noqa: E402  (before torch: torch's threads then wait as they do in training)
 import baselines  # noqa: E402
+import numpy as np  # noqa: E402
 import planner  # noqa: E402
-import tarl  # noqa: E402
+import torch  # noqa: E402
+import torch.nn.functional as F  # noqa: E402
 from tarl import SAC, SACConfig, mlp  # noqa: E402
+from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
 OBS_DIM, T_MAX, LOW, HIGH = tarl.OBS_DIM, tarl.T_MAX, -3.0, 2.0
 med = statistics.median
