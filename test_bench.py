@@ -101,3 +101,19 @@ def test_table3_a_cell_is_run_by_one_grid_only_and_never_again_once_done(tmp_pat
     (args.results / "runs" / "intersection-sac-s1").mkdir(parents=True)
     (args.results / "runs" / "intersection-sac-s1" / "eval.json").write_text("{}")
     assert table3.claim(cell, args) is None  # done
+
+
+def test_table3_counts_case_by_case_where_only_one_of_two_arrives(tmp_path):
+    def row(algo, outcomes):
+        r = _row(algo, 0, 0.5, "a" * len(outcomes))
+        r["cases"] = [{"round": 0, "case": i, "start": "a", "outcome": o} for i, o in enumerate(outcomes)]
+        return r
+    found = _results(tmp_path, [
+        ("roundabout-tarl-s0", "roundabout", 0, [row("tarl", ["arrival", "arrival", "timeout", "collision", "arrival"]),
+                                                 row("lattice-idm", ["timeout"] * 5)]),
+        ("roundabout-tarl-fixed-t-s0", "roundabout", 0, [row("tarl-fixed-t", ["arrival", "collision", "arrival",
+                                                                              "arrival", "timeout"])])])
+    lines = table3.case_by_case(found)
+    assert "| 100,000 | roundabout | 0 | TARL, T = 2 fixed | 1 / 1 | 1 / 1 |" in lines
+    assert "| 100,000 | roundabout | 0 | Lattice-IDM | 0 / 3 | 0 / 0 |" in lines
+    assert len(lines) == 4  # the header, its rule and the two comparisons

@@ -181,6 +181,23 @@ def same_cases(found: dict) -> list[str]:
     return lines
 
 
+def case_by_case(found: dict, against=("tarl-fixed-t", "tarl-random-t", "sac", "lattice-idm")) -> list[str]:
+    """TARL against each of `against` on the same test cases: where exactly one of the two arrives, how the other
+    failed (the README's "What the timing adds")."""
+    lines = ["| budget | scenario | seed | TARL against | only TARL arrives: the other collides / times out | "
+             "only the other arrives: TARL collides / times out |", "|---|---|---|---|---|---|"]
+    for budget, scenario, algo in [(b, s, a) for b in sorted(found) for s in SCENARIOS for a in against]:
+        for seed, row in sorted(found[budget].get((scenario, algo), {}).items()):
+            tarl_row = found[budget].get((scenario, "tarl"), {}).get(seed)
+            if tarl_row is None:
+                continue
+            mine = {(c["round"], c["case"]): c["outcome"] for c in tarl_row["cases"]}
+            pairs = Counter((mine[c["round"], c["case"]], c["outcome"]) for c in row["cases"] if (c["round"], c["case"]) in mine)
+            lines.append(f"| {budget:,} | {scenario} | {seed} | {NAMES[algo]} | {pairs['arrival', 'collision']} / "
+                         f"{pairs['arrival', 'timeout']} | {pairs['collision', 'arrival']} / {pairs['timeout', 'arrival']} |")
+    return lines
+
+
 README_ROWS = {"results": ("tarl", "tarl-step1", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo"),
                "timing": ("tarl", "tarl-fixed-t", "tarl-random-t", "sac", "lattice-idm")}
 
@@ -249,7 +266,9 @@ def collect(args):
                          + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.3f} +- {paper[3]:.3f} |" if paper else " | - | - |"))
         lines.append("")
     lines += ["## The same test cases for every row", "", "Each case's start fingerprint in eval.json, against the one "
-              "most rows of that seed had for it:", "", *same_cases(found), ""]
+              "most rows of that seed had for it:", "", *same_cases(found), "",
+              "## Case by case: TARL against its ablations, plain SAC and its planner", "",
+              "Of the same test cases, those where exactly one of the two arrives:", "", *case_by_case(found), ""]
     (args.results / "table3.md").write_text("\n".join(lines))
     if args.readme:
         write_readme(found, ROOT / "README.md")
