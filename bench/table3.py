@@ -198,8 +198,8 @@ def case_by_case(found: dict, against=("tarl-fixed-t", "tarl-random-t", "sac", "
     return lines
 
 
-README_ROWS = {"results": ("tarl", "tarl-step1", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo"),
-               "timing": ("tarl", "tarl-fixed-t", "tarl-random-t", "sac", "lattice-idm")}
+TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL's cell
+README_ROWS = {"results": TABLE_ROWS, "timing": ("tarl", *ABLATIONS, "sac", "lattice-idm")}
 
 
 def readme_block(found: dict, algos, paper: bool) -> list[str]:
@@ -254,7 +254,7 @@ def collect(args):
         title = scenario if budget == STEPS else f"{scenario}, at {budget:,} training steps"
         lines += [f"## {title}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
                   "at 60 s [s] | paper success | paper crossing [s] |", "|---|---|---|---|---|---|---|---|"]
-        for algo in ("tarl", "tarl-step1", *ROWS[1:], *ABLATIONS):  # TARL's step-1 model: from TARL's cell
+        for algo in (*TABLE_ROWS, *ABLATIONS):
             rows = found.get(budget, {}).get((scenario, algo))
             if not rows:
                 continue
