@@ -23,9 +23,11 @@ from __future__ import annotations
 import argparse
 import collections
 import copy
+import hashlib
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import tempfile
@@ -693,37 +695,68 @@ def play_round(env: DrivingEnv, drivers: list[Driver], cases: int, seed: int, ro
 _worker_env: DrivingEnv | None = None  # an evaluation process's own simulation
 
 
-def _play_round_in_worker(cfg: EnvConfig, *job):
+def _play_round_in_worker(job: tuple) -> tuple[int, list[list[dict]]]:
     global _worker_env
+    cfg, drivers, cases, seed, r = job
     torch.set_num_threads(1)
     _worker_env = _worker_env if _worker_env is not None and _worker_env.cfg == cfg else DrivingEnv(cfg)
-    return play_round(_worker_env, *job)
+    return r, play_round(_worker_env, drivers, cases, seed, r)
 
 
 def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: int = 0, workers: int = 2,
-             env: DrivingEnv | None = None, log=print) -> list[dict]:
+             env: DrivingEnv | None = None, log=print, keep: Path | None = None) -> list[dict]:
     """Table 3's protocol for every row (dicts of algo, driver, optional label and train_steps): R rounds
     of C test cases, round r from test_seed(seed, r), every row on the same cases. The rounds run in
     `workers` processes, or here on `env` if workers is 0 (sumo-gui, tests): a round gives the same
-    numbers wherever it runs."""
-    import concurrent.futures as cf
+    numbers wherever it runs. keep: a folder where each finished round is kept, so that an interrupted
+    evaluation of the same models plays only the rounds it had not finished."""
     import multiprocessing as mp
-    drivers, played, t0 = [row["driver"] for row in rows], {}, time.time()
-    if workers:
-        pool = cf.ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
-        futures = {pool.submit(_play_round_in_worker, cfg, drivers, cases, seed, r): r for r in range(rounds)}
-        done = ((futures[f], f.result()) for f in cf.as_completed(futures))
+    drivers, t0, key = [row["driver"] for row in rows], time.time(), evaluation_key(cfg, rows, cases, seed)
+    played = {r: kept for r in range(rounds) if (kept := kept_round(keep, r, key)) is not None}
+    todo = [r for r in range(rounds) if r not in played]
+    if played:
+        log(f"  {len(played)} of {rounds} rounds kept in {keep} from an interrupted evaluation")
+    pool = mp.get_context("spawn").Pool(min(workers, len(todo))) if workers and todo else None
+    if pool:
+        done = pool.imap_unordered(_play_round_in_worker, [(cfg, drivers, cases, seed, r) for r in todo])
     else:
-        done = ((r, play_round(env, drivers, cases, seed, r)) for r in range(rounds))
-    for n, (r, result) in enumerate(done, 1):
-        played[r] = result
-        successes = ", ".join(f"{row['algo']} {np.mean([ep['outcome'] == 'arrival' for ep in eps]):.3f}"
-                              for row, eps in zip(rows, result))
-        log(f"  round {r + 1}/{rounds}: success {successes}  [{n}/{rounds} rounds, {time.time() - t0:.0f} s, "
-            f"ETA {(time.time() - t0) / n * (rounds - n):.0f} s]")
-    if workers:
-        pool.shutdown()
+        done = ((r, play_round(env, drivers, cases, seed, r)) for r in todo)
+    try:
+        for n, (r, result) in enumerate(done, 1):
+            played[r] = [[{k: ep[k].tolist() if k in ("beta", "T") else ep[k] for k in KEPT} for ep in eps]
+                         for eps in result]  # what summarize needs, as JSON keeps it
+            if keep is not None:
+                keep.mkdir(parents=True, exist_ok=True)
+                (keep / f"round{r}.json").write_text(json.dumps(dict(key=key, rows=played[r])))
+            successes = ", ".join(f"{row['algo']} {np.mean([ep['outcome'] == 'arrival' for ep in eps]):.3f}"
+                                  for row, eps in zip(rows, result))
+            log(f"  round {r + 1}/{rounds}: success {successes}  [{n}/{len(todo)} rounds, {time.time() - t0:.0f} s, "
+                f"ETA {(time.time() - t0) / n * (len(todo) - n):.0f} s]")
+    finally:
+        if pool:
+            pool.terminate()  # at once, also when interrupted: the finished rounds are kept
     return [summarize(row, [played[r][i] for r in range(rounds)], cfg, seed) for i, row in enumerate(rows)]
+
+
+KEPT = ("round", "case", "start", "outcome", "crossing_time", "steps", "beta", "T")  # of an episode, for summarize
+
+
+def evaluation_key(cfg: EnvConfig, rows: list[dict], cases: int, seed: int) -> str:
+    """What a kept round was played with: the scenario, seed, cases per round, and each row's algo and weights."""
+    h = hashlib.sha1(repr((asdict(cfg), cases, seed, [row["algo"] for row in rows])).encode())
+    for net in (n for row in rows for n in (row["driver"].actor, row["driver"].timing_taker) if n is not None):
+        for tensor in getattr(net, "policy", net).state_dict().values():
+            h.update(tensor.numpy().tobytes())
+    return h.hexdigest()
+
+
+def kept_round(keep: Path | None, r: int, key: str) -> list[list[dict]] | None:
+    """Round r's episodes per row, if `keep` holds it from the same models and cases."""
+    try:
+        kept = json.loads((keep / f"round{r}.json").read_text()) if keep is not None else {}
+    except (OSError, ValueError):  # no file, or one cut short
+        return None
+    return kept["rows"] if kept.get("key") == key else None
 
 
 def mean_std(x) -> dict:
@@ -790,7 +823,7 @@ def parse_args(argv=None):
     p.add_argument("--eval-rounds", type=int, default=10, help="R of Table 3")
     p.add_argument("--eval-cases", type=int, default=200, help="C of Table 3: test cases per round")
     p.add_argument("--out", type=Path, help="run directory (default runs/SCENARIO-ALGO-sSEED): train_log.csv, "
-                   "ckpt.pt, policy.pt, eval.json")
+                   "ckpt.pt, policy.pt, eval.json (eval-rounds/ while evaluating)")
     p.add_argument("--load", type=Path, metavar="CKPT", help="evaluate this ckpt.pt or policy.pt instead of training")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
     p.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1),
@@ -847,10 +880,15 @@ def main(argv=None):
             rows.append(dict(algo="lattice-idm", label="Lattice-IDM", driver=Driver("planner")))
         print(f"evaluating on the {args.scenario}: {args.eval_rounds} rounds x {args.eval_cases} test cases, the same "
               "cases for every model")
-        workers = 0 if args.gui else args.workers
+        workers, keep = 0 if args.gui else args.workers, args.out / "eval-rounds"
         if workers:
             env.close()  # the workers run their own simulations
-        results = evaluate(cfg, rows, args.eval_rounds, args.eval_cases, args.seed, workers, env)
+        try:
+            results = evaluate(cfg, rows, args.eval_rounds, args.eval_cases, args.seed, workers, env, keep=keep)
+        except KeyboardInterrupt:
+            trained_here = not args.load and args.algo != "lattice-idm"
+            again = f"continue with --resume --out {args.out}" if trained_here else "run the same command again"
+            raise SystemExit(f"kept the finished rounds in {keep}; {again} to play the others") from None
     finally:
         env.close()
     print(table(results))
@@ -858,6 +896,7 @@ def main(argv=None):
         print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
     (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code, rows=results)))
     print(f"wrote {args.out / 'eval.json'}")
+    shutil.rmtree(keep, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -80,6 +80,31 @@ def test_same_seed_gives_the_same_evaluation(env):
     assert sum(tarl_row["timing_share"]["all_steps"]) == pytest.approx(1.0, abs=1e-3)
 
 
+
+def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env, tmp_path, monkeypatch):
+    def rows(weights_seed):
+        torch.manual_seed(weights_seed)
+        actor = tarl.SAC(tarl.OBS_DIM, act_dim=1, low=[env.cfg.a_min], high=[env.cfg.a_max], cfg=SMALL_SAC)
+        return [dict(algo="sac", driver=tarl.Driver("none", actor)), dict(algo="lattice-idm", driver=tarl.Driver("planner"))]
+
+    def evaluate(rows, **kw):
+        return tarl.evaluate(env.cfg, rows, rounds=3, cases=2, seed=0, workers=0, env=env, **kw)
+
+    whole = evaluate(rows(0), **QUIET)
+
+    def stop_after_two_rounds(line):
+        if "[2/3 rounds" in line:
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        evaluate(rows(0), log=stop_after_two_rounds, keep=tmp_path)
+    played, play_round = [], tarl.play_round
+    monkeypatch.setattr(tarl, "play_round", lambda *a: played.append(a[-1]) or play_round(*a))
+    assert evaluate(rows(0), keep=tmp_path, **QUIET) == whole  # the same numbers, down to every case
+    assert len(played) == 1  # one of the three rounds left
+    played.clear()
+    evaluate(rows(1), keep=tmp_path, **QUIET)  # another actor: nothing kept applies
+    assert played == [0, 1, 2]
+
 @pytest.mark.parametrize("argv", [["--scenario", "highway"], ["--algo", "ppo"], ["--eval-rounds", "0"],
                                   ["--gui", "--algo", "tarl"]])
 def test_bad_command_lines_get_argparse_errors(argv, tmp_path):
@@ -107,6 +132,29 @@ def test_the_command_line_evaluates_the_planner_and_writes_every_case(tmp_path, 
     assert {c["outcome"] for c in row["cases"]} <= {"arrival", "collision", "timeout"}
     assert "Lattice-IDM" in capsys.readouterr().out
 
+
+
+def test_the_command_line_keeps_finished_rounds_when_interrupted_and_plays_the_rest_in_a_worker(env, tmp_path,
+                                                                                               monkeypatch):
+    argv = ["--scenario", "intersection", "--algo", "lattice-idm", "--eval-rounds", "2", "--eval-cases", "2",
+            "--out", str(tmp_path)]
+    play_round = tarl.play_round
+
+    def interrupt_round_1(*a):
+        if a[-1] == 1:
+            raise KeyboardInterrupt
+        return play_round(*a)
+    monkeypatch.setattr(tarl, "play_round", interrupt_round_1)
+    with pytest.raises(SystemExit, match="kept the finished rounds in .*eval-rounds; run the same command again"):
+        tarl.main([*argv, "--workers", "0"])
+    assert [f.name for f in (tmp_path / "eval-rounds").iterdir()] == ["round0.json"]
+    monkeypatch.setattr(tarl, "play_round", play_round)
+    tarl.main([*argv, "--workers", "1"])  # round 1 in a worker process
+    row = json.loads((tmp_path / "eval.json").read_text())["rows"][0]
+    whole = tarl.evaluate(env.cfg, [dict(algo="lattice-idm", label="Lattice-IDM", driver=tarl.Driver("planner"))],
+                          rounds=2, cases=2, seed=0, workers=0, env=env, **QUIET)[0]
+    assert row == json.loads(json.dumps(whole))
+    assert not (tmp_path / "eval-rounds").exists()
 
 def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypatch):
     now, lines = [0.0], []
