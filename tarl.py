@@ -738,7 +738,8 @@ def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: in
     return [summarize(row, [played[r][i] for r in range(rounds)], cfg, seed) for i, row in enumerate(rows)]
 
 
-KEPT = ("round", "case", "start", "outcome", "crossing_time", "steps", "beta", "T")  # of an episode, for summarize
+CASE_KEYS = ("round", "case", "start", "outcome", "crossing_time", "steps")  # of each case, in eval.json
+KEPT = (*CASE_KEYS, "beta", "T")  # of an episode: what summarize needs
 
 
 def evaluation_key(cfg: EnvConfig, rows: list[dict], cases: int, seed: int) -> str:
@@ -795,7 +796,7 @@ def summarize(row: dict, rounds: list[list[dict]], cfg: EnvConfig, seed: int) ->
         share = lambda T: (np.bincount(np.concatenate(T), minlength=T_MAX + 1)[1:] / sum(map(len, T))).round(4).tolist()  # noqa: E731
         out["timing_share"] = {"all_steps": share([ep["T"] for ep in episodes]),  # of T = 1, ..., T_max
                                "3s_before_collision": share([ep["T"][-k3:] for ep in crashes]) if crashes else None}
-    out["cases"] = [{k: ep[k] for k in ("round", "case", "start", "outcome", "crossing_time", "steps")} for ep in episodes]
+    out["cases"] = [{k: ep[k] for k in CASE_KEYS} for ep in episodes]
     return out
 
 

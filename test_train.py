@@ -80,7 +80,6 @@ def test_same_seed_gives_the_same_evaluation(env):
     assert sum(tarl_row["timing_share"]["all_steps"]) == pytest.approx(1.0, abs=1e-3)
 
 
-
 def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env, tmp_path, monkeypatch):
     def rows(weights_seed):
         torch.manual_seed(weights_seed)
@@ -104,6 +103,7 @@ def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env
     played.clear()
     evaluate(rows(1), keep=tmp_path, **QUIET)  # another actor: nothing kept applies
     assert played == [0, 1, 2]
+
 
 @pytest.mark.parametrize("argv", [["--scenario", "highway"], ["--algo", "ppo"], ["--eval-rounds", "0"],
                                   ["--gui", "--algo", "tarl"]])
@@ -133,7 +133,6 @@ def test_the_command_line_evaluates_the_planner_and_writes_every_case(tmp_path, 
     assert "Lattice-IDM" in capsys.readouterr().out
 
 
-
 def test_the_command_line_keeps_finished_rounds_when_interrupted_and_plays_the_rest_in_a_worker(env, tmp_path,
                                                                                                monkeypatch):
     argv = ["--scenario", "intersection", "--algo", "lattice-idm", "--eval-rounds", "2", "--eval-cases", "2",
@@ -155,6 +154,7 @@ def test_the_command_line_keeps_finished_rounds_when_interrupted_and_plays_the_r
                           rounds=2, cases=2, seed=0, workers=0, env=env, **QUIET)[0]
     assert row == json.loads(json.dumps(whole))
     assert not (tmp_path / "eval-rounds").exists()
+
 
 def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypatch):
     now, lines = [0.0], []
