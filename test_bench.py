@@ -58,6 +58,11 @@ def test_table3_averages_over_seeds_keeps_budgets_apart_and_finds_odd_starts(tmp
     # seed 1: TARL's second case began differently from SAC's and Lattice-IDM's
     assert any("seed 1" in line and "TARL 1" in line for line in table3.same_cases(found))
     assert any("seed 0" in line and "every row met the same cases" in line for line in table3.same_cases(found))
+    # seed by seed: a row without a seed shows "-" there; each budget has its own table
+    seeds = table3.each_seed(found)
+    assert "| 100,000 | roundabout | SAC | 0.800 (0.200 / 0.000), 20.0 s | 0.900 (0.100 / 0.000), 20.0 s |" in seeds
+    assert "| 100,000 | roundabout | Lattice-IDM | - | 0.500 (0.500 / 0.000), 20.0 s |" in seeds
+    assert "| 500,000 | roundabout | TARL | 0.950 (0.050 / 0.000), 20.0 s |" in seeds
 
 
 def test_table3_rewrites_only_the_readme_blocks_between_its_markers(tmp_path):

@@ -202,6 +202,25 @@ TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL
 README_ROWS = {"results": TABLE_ROWS, "timing": ("tarl", *ABLATIONS, "sac", "lattice-idm")}
 
 
+def each_seed(found: dict) -> list[str]:
+    """Per budget and scenario, every row's success (collisions / timeouts) and crossing time seed by seed: the
+    numbers behind each mean +- std over seeds, which the README's words quote."""
+    lines = []
+    for budget in sorted(found):
+        seeds = sorted({seed for rows in found[budget].values() for seed in rows})
+        lines += ["| budget | scenario | model | " + " | ".join(f"seed {s}" for s in seeds) + " |",
+                  "|---|---|---|" + "---|" * len(seeds)]
+        for scenario, algo in [(s, a) for s in SCENARIOS for a in (*TABLE_ROWS, *ABLATIONS)]:
+            rows = found[budget].get((scenario, algo), {})
+            if rows:
+                lines.append(f"| {budget:,} | {scenario} | {NAMES[algo]} | " + " | ".join(
+                    "-" if s not in rows else "{:.3f} ({:.3f} / {:.3f}), {:.1f} s".format(
+                        *(rows[s][k]["mean"] for k in ("success_rate", "collision_rate", "timeout_rate")),
+                        rows[s]["crossing_time"]["mean"] or float("nan")) for s in seeds) + " |")
+        lines.append("")
+    return lines
+
+
 def readme_block(found: dict, algos, paper: bool) -> list[str]:
     """The README's tables at the default budget, one per scenario: mean +- std over seeds, in brackets the mean
     per-round std (success and crossing time), the best success in bold, and Table 3's values if `paper`."""
@@ -265,7 +284,9 @@ def collect(args):
                          + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
                          + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.3f} +- {paper[3]:.3f} |" if paper else " | - | - |"))
         lines.append("")
-    lines += ["## The same test cases for every row", "", "Each case's start fingerprint in eval.json, against the one "
+    lines += ["## Each seed", "", "Success (collision / timeout) and crossing time of each seed, the mean over its rounds:",
+              "", *each_seed(found),
+              "## The same test cases for every row", "", "Each case's start fingerprint in eval.json, against the one "
               "most rows of that seed had for it:", "", *same_cases(found), "",
               "## Case by case: TARL against its ablations, plain SAC and its planner", "",
               "Of the same test cases, those where exactly one of the two arrives:", "", *case_by_case(found), ""]
