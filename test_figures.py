@@ -73,8 +73,12 @@ def test_training_draws_real_episodes_of_a_tiny_log_and_rejects_a_missing_folder
     write_log(runs / "intersection-sac-s1", [(200, "step1", 0, 0, 1, 0, "", ""), (650, "real", 5, 0, 0, 1, "", "")])
     log = figures.read_log(runs / "intersection-tarl-s0" / "train_log.csv")
     assert figures.step_one_end(log) == 300
-    np.testing.assert_allclose(figures.binned(log, "episode_return", 350, 2), [-5.0, 10.0])  # no 99 in either bin
-    np.testing.assert_allclose(figures.binned(log, "collision", 350, 2), [0.5, 0.5])
+    np.testing.assert_allclose(figures.binned(log, "episode_return", 350, 2, 1), [-5.0, 10.0])  # no 99 in either bin
+    np.testing.assert_allclose(figures.binned(log, "collision", 350, 2, 1), [0.5, 0.5])
+    # a bin of one episode (the last of step 1, say) is blank by default: one episode is not a rate
+    np.testing.assert_allclose(figures.binned(log, "collision", 350, 2, 2), [0.5, 0.5])
+    np.testing.assert_allclose(figures.binned(log, "collision", 250, 3), [np.nan, np.nan, np.nan])
+    np.testing.assert_allclose(figures.binned(log, "collision", 200, 4, 2), [np.nan, np.nan, 0.5, np.nan])
     mean, low, high = figures.over_seeds(np.array([[1.0, np.nan], [3.0, np.nan]]))
     assert mean[0] == 2.0 and (low[0], high[0]) == (1.0, 3.0) and np.isnan(mean[1])
 

@@ -74,6 +74,7 @@ PAPER_BETA_MINUS = {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663,
 RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)(?:-(?P<budget>\d+k))?$")  # bench/table3.py
 ACTOR, BASE, EXECUTED, TIMING = "#1f77b4", "#2ca02c", "#ff7f0e", "#6a3d9a"  # Fig. 6's colours
 DPI = 130
+MIN_EPISODES = 3  # a training-curve bin with fewer real episodes is left blank (one episode is not a rate)
 GAME_COLORS = {world.CROSS: "#d95f02", world.YIELD: "#1b9e77"}  # edges of the humans in the game with the ego
 
 
@@ -131,14 +132,15 @@ def step_one_end(log: dict) -> int | None:
     return int(steps.max()) if len(steps) else None
 
 
-def binned(log: dict, key: str, bin_steps: int, n_bins: int) -> np.ndarray:
-    """The mean of `key` over the real-environment episodes ending in each bin of bin_steps (nan if none)."""
+def binned(log: dict, key: str, bin_steps: int, n_bins: int, min_episodes: int = MIN_EPISODES) -> np.ndarray:
+    """The mean of `key` over the real-environment episodes ending in each bin of bin_steps (nan if fewer than
+    min_episodes: e.g. the bin where step 1 ends just before the timing imagination's first steps)."""
     real = log["loop"] != "imagination"
     idx = np.minimum((log["step"][real] - 1) // bin_steps, n_bins - 1)
     count = np.bincount(idx, minlength=n_bins)
     total = np.bincount(idx, weights=log[key][real], minlength=n_bins)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+        return np.where(count >= max(min_episodes, 1), total / np.maximum(count, 1), np.nan)
 
 
 def over_seeds(curves: np.ndarray):
@@ -203,8 +205,8 @@ def training(args):
         handles.append(Line2D([], [], color="k", ls=":", lw=1.3, label="end of TARL's step 1 (plain SAC)"))
     # below the panels, in inches from the bottom: the caption, then the legend
     caption = textwrap.fill(f"Real-environment episodes only (timing imagination excluded); each seed's episodes averaged "
-                            f"over bins of {bin_steps:,} steps. Line: mean over seeds; band: min-max over seeds.",
-                            75 * len(scenarios))
+                            f"over bins of {bin_steps:,} steps (blank: fewer than {MIN_EPISODES} episodes). Line: mean over "
+                            "seeds; band: min-max over seeds.", 75 * len(scenarios))
     ncol = min(4 if len(scenarios) > 1 else 2, len(handles))
     height = fig.get_figheight()
     caption_top = 0.1 + 0.19 * (caption.count("\n") + 1)
