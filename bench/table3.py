@@ -200,6 +200,7 @@ def case_by_case(found: dict, against=("tarl-fixed-t", "tarl-random-t", "sac", "
 
 TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL's cell
 README_ROWS = {"results": TABLE_ROWS, "timing": ("tarl", *ABLATIONS, "sac", "lattice-idm")}
+RATES = ("success_rate", "collision_rate", "timeout_rate")  # of each row of eval.json, in the tables' column order
 
 
 def each_seed(found: dict) -> list[str]:
@@ -215,7 +216,7 @@ def each_seed(found: dict) -> list[str]:
             if rows:
                 lines.append(f"| {budget:,} | {scenario} | {NAMES[algo]} | " + " | ".join(
                     "-" if s not in rows else "{:.3f} ({:.3f} / {:.3f}), {:.1f} s".format(
-                        *(rows[s][k]["mean"] for k in ("success_rate", "collision_rate", "timeout_rate")),
+                        *(rows[s][k]["mean"] for k in RATES),
                         rows[s]["crossing_time"]["mean"] or float("nan")) for s in seeds) + " |")
         lines.append("")
     return lines
@@ -234,7 +235,7 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
         lines += [f"**{scenario.capitalize()}**", "", "| model | seeds | success | collision | timeout | crossing [s] |"
                   + " paper success | paper crossing [s] |" * paper, "|---|---|---|---|---|---|" + "---|---|" * paper]
         table = {algo: found.get(STEPS, {}).get((scenario, algo)) for algo in algos}
-        table = {algo: {k: over_seeds(rows, k) for k in ("success_rate", "collision_rate", "timeout_rate", "crossing_time")}
+        table = {algo: {k: over_seeds(rows, k) for k in (*RATES, "crossing_time")}
                  | {"seeds": len(rows)} for algo, rows in table.items() if rows}
         best = max((stats["success_rate"] or (0,))[0] for stats in table.values()) if table else None
         for algo, stats in table.items():
@@ -280,7 +281,7 @@ def collect(args):
             paper = PAPER[scenario].get(algo)
             steps = {r["train_steps"] for r in rows.values()}
             lines.append(f"| {NAMES[algo]} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | "
-                         + " | ".join(cell_text(over_seeds(rows, k), 3) for k in ("success_rate", "collision_rate", "timeout_rate"))
+                         + " | ".join(cell_text(over_seeds(rows, k), 3) for k in RATES)
                          + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
                          + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.3f} +- {paper[3]:.3f} |" if paper else " | - | - |"))
         lines.append("")
