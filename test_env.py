@@ -183,15 +183,16 @@ def test_a_yielding_human_stops_before_the_conflict_point(monkeypatch):
 
 def test_two_drivers_meet_the_same_test_cases():
     """Case c of a round is the same traffic, departures and ego route for every model (Table 3)."""
+    import experiment
     import tarl
     env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
     try:
-        planner_only = tarl.play_round(env, [tarl.Driver("planner")], cases=4, seed=0, round_=0)[0]
+        planner_only = experiment.play_round(env, [tarl.Driver("planner")], cases=4, seed=0, round_=0)[0]
         full_throttle = tarl.Driver("none", type("Throttle", (), {"act": lambda self, obs, det: np.array([2.0])})())
-        reckless = tarl.play_round(env, [full_throttle], cases=4, seed=0, round_=0)[0]
+        reckless = experiment.play_round(env, [full_throttle], cases=4, seed=0, round_=0)[0]
         with tempfile.TemporaryDirectory() as folder:  # a case played alone, after others: the same episode
-            cases = env.record_cases(tarl.test_seed(0, 0), 4, folder)
-            alone = tarl.rollout(env, tarl.Driver("planner"), {"case": cases[2]})
+            cases = env.record_cases(experiment.test_seed(0, 0), 4, folder)
+            alone = experiment.rollout(env, tarl.Driver("planner"), {"case": cases[2]})
     finally:
         env.close()
     assert [alone[k] for k in ("start", "outcome", "steps")] == [planner_only[2][k] for k in ("start", "outcome", "steps")]
@@ -204,7 +205,7 @@ def test_a_case_starts_the_same_whatever_ran_before():
     """A test case is its saved state alone: what the simulation did before the load must not change how
     the case begins. SUMO 1.28 carries something of the run before a loadState over: loaded after an
     episode that had just played the case's first step, a case let a waiting human enter a step late."""
-    import tarl
+    import experiment
     env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
 
     def start(case):  # every vehicle's position after the reset, and the fingerprint
@@ -213,10 +214,80 @@ def test_a_case_starts_the_same_whatever_ran_before():
 
     try:
         with tempfile.TemporaryDirectory() as folder:
-            cases = env.record_cases(tarl.test_seed(0, 1), 4, folder)
+            cases = env.record_cases(experiment.test_seed(0, 1), 4, folder)
             # after the recording; after an episode that ended at the case's first step; after another case
             starts = [start(cases[3]), start(cases[3]), start(cases[0]), start(cases[3])]
     finally:
         env.close()
     assert starts[2] != starts[0]
     assert starts[0] == starts[1] == starts[3]
+
+
+# ---- EnvConfig's traffic shifts (spawn_gap, svo_range, human_level): the defaults are the paper's ----
+
+def _play_cases(cfg, seed=3, n=3):
+    """The fingerprints of n recorded cases, each played at 0.5 m/s^2 to its end, and the humans recorded."""
+    env, prints = world.DrivingEnv(cfg), []
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            cases = env.record_cases(seed, n, folder)
+            for case in cases:
+                env.reset(options={"case": case})
+                prints.append(env.fingerprint())
+                done = False
+                while not done:
+                    obs, r, terminated, truncated, info = env.step(0.5)
+                    prints.append(env.fingerprint())
+                    done = terminated or truncated
+    finally:
+        env.close()
+    return prints, [case["humans"] for case in cases]
+
+
+def test_the_default_traffic_is_table_1_and_level_2_spelled_out():
+    default, humans = _play_cases(EnvConfig(scenario="roundabout"))
+    explicit, humans_explicit = _play_cases(EnvConfig(scenario="roundabout", svo_range=(0.0, 0.5), human_level=2))
+    assert len(default) > 3 and default == explicit
+    assert all(h.keys() == g.keys() and all(np.array_equal(h[k], g[k]) for k in h) for h, g in zip(humans, humans_explicit))
+
+
+def test_an_svo_range_changes_only_the_svo_of_the_same_humans():
+    cfg = EnvConfig(scenario="roundabout", warmup=30.0)
+    env = world.DrivingEnv(cfg)
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            paper = env.record_cases(5, 2, folder)
+            env = world.DrivingEnv(EnvConfig(scenario="roundabout", warmup=30.0, svo_range=(0.9, 0.9)))
+            selfless = env.record_cases(5, 2, folder)
+    finally:
+        env.close()
+    for a, b in zip(paper, selfless):
+        assert a["humans"].keys() == b["humans"].keys() and a["n_humans"] == b["n_humans"] > 5
+        for h in a["humans"]:  # one draw per parameter in the same order: the other parameters agree
+            assert 0.0 <= a["humans"][h][4] <= 0.5 and b["humans"][h][4] == 0.9
+            np.testing.assert_array_equal(np.delete(a["humans"][h], 4), np.delete(b["humans"][h], 4))
+
+
+def test_the_humans_play_the_configured_level(monkeypatch):
+    levels, game = [], world.level_k_decisions
+    monkeypatch.setattr(world, "level_k_decisions", lambda *args: levels.append(args[-1]) or game(*args))
+    env = world.DrivingEnv(EnvConfig(scenario="roundabout", human_level=0))
+    try:
+        env.reset(seed=0)  # a human meets the ego at once
+        for _ in range(150):
+            if env.step(0.0)[2:4] != (False, False) or levels:
+                break
+    finally:
+        env.close()
+    assert levels and set(levels) == {0}
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(human_level=-1), "human_level"), (dict(human_level=1.5), "human_level"), (dict(human_level=True), "human_level"),
+    (dict(svo_range=(0.6, 0.2)), "svo_range"), (dict(svo_range=(-0.1, 0.5)), "svo_range"),
+    (dict(svo_range=(0.5, 1.2)), "svo_range"), (dict(svo_range=0.3), "svo_range"),
+    (dict(spawn_gap=0.0), "spawn_gap"), (dict(spawn_gap=-1.0), "spawn_gap"), (dict(spawn_gap=math.nan), "spawn_gap")])
+def test_a_bad_traffic_setting_is_refused_before_sumo_starts(monkeypatch, bad, message):
+    monkeypatch.setattr(world.DrivingEnv, "_start", lambda *args, **kw: pytest.fail("SUMO was started"))
+    with pytest.raises(ValueError, match=message):
+        world.DrivingEnv(EnvConfig(scenario="roundabout", **bad)).reset(seed=0)

@@ -77,9 +77,9 @@ def test_boxes_overlap_by_hand():
 A = np.array([[0.65, 0.125, 0.125, 0.125]])
 
 
-def decide(t_h, t_e, waited_h=0.0, decel_h=0.3, alpha=A, svo=0.0):
+def decide(t_h, t_e, waited_h=0.0, decel_h=0.3, alpha=A, svo=0.0, level=2):
     return world.level_k_decisions(np.array([t_h]), np.array([t_e]), np.array([decel_h]), np.array([0.3]),
-                                  np.array([waited_h]), 0.0, alpha, np.array([svo]), CFG)[0]
+                                  np.array([waited_h]), 0.0, alpha, np.array([svo]), CFG, level)[0]
 
 
 def test_level_k_same_arrival_human_yields():
@@ -105,6 +105,28 @@ def test_level_k_impatient_human_goes_after_waiting():
     assert decide(2.0, 2.0, waited_h=0.0, alpha=impatient) == YIELD
     # 30 s waited: cross U = .2 x 1 = .2 > .094: CROSS
     assert decide(2.0, 2.0, waited_h=30.0, alpha=impatient) == CROSS
+
+
+def test_level_0_is_selfish_and_level_2_weighs_the_egos_gain_by_svo():
+    # human at 2 s, having waited 10 s; ego at 1 s. Human, ego crossing: cross -> gap 1 s, U = .65 x .2
+    # + .125 x 10 / 30 = .1717; yield until 2.5 s -> gap 1.5 s, .5 s wait, U = .195 - .00625 - .0375
+    # = .1513. Level 0: CROSS. Ego (level 1) against that crossing human: cross U = .13, yield until
+    # 3.5 s: U = .195 - .03125 - .0375 = .1263: CROSS. Level 2 against a crossing ego, svo = .5: cross
+    # .5 x .1717 + .5 x .13 = .1508, yield .5 x .1513 + .5 x .195 (the ego's gap grows to 1.5 s) = .1731
+    assert decide(2.0, 1.0, waited_h=10.0, svo=0.5, level=0) == CROSS
+    assert decide(2.0, 1.0, waited_h=10.0, svo=0.5, level=2) == YIELD
+    assert decide(2.0, 1.0, waited_h=10.0, svo=0.0, level=2) == CROSS  # without SVO level 2 agrees
+    assert decide(2.0, 1.0, waited_h=10.0, svo=0.5, decel_h=1.5, level=2) == CROSS  # cannot stop: crosses
+    assert decide(2.0, 1.0, waited_h=10.0, svo=0.5, decel_h=1.5, level=0) == CROSS
+
+
+def test_level_1_replies_to_an_ego_that_expects_the_human_to_cross():
+    # same arrival (test_level_k_same_arrival_human_yields): level 0 and 2 YIELD. The level-0 ego
+    # against a crossing human is the level-0 human mirrored (same weights): YIELD; so the level-1
+    # human crosses
+    assert [decide(2.0, 2.0, level=k) for k in (0, 1, 2)] == [YIELD, CROSS, YIELD]
+    with pytest.raises(ValueError, match="level"):
+        decide(2.0, 2.0, level=-1)
 
 
 def test_level_k_is_vectorised():

@@ -2,9 +2,10 @@
 
 Sections 3 and 5.1-5.2 of the paper: an unsignalized intersection or a two-lane roundabout
 (scenarios/), human drivers who follow IDM with Table 1's parameters and play a level-k (k = 2)
-game with the ego at every conflict point, the ego's observation and reward. DrivingEnv follows
-Gymnasium's conventions; tarl.py learns in it. Equations are cited by the number printed in the
-paper's PDF (PAPER.md maps them to the LaTeX labels and has the notes cited as "PAPER.md, note n").
+game with the ego at every conflict point, the ego's observation and reward (EnvConfig's
+spawn_gap, svo_range and human_level shift the traffic). DrivingEnv follows Gymnasium's
+conventions; tarl.py learns in it. Equations are cited by the number printed in the paper's PDF
+(PAPER.md maps them to the LaTeX labels and has the notes cited as "PAPER.md, note n").
 
     Eqs. (1)-(2)                  DrivingEnv.step: one SUMO step; SUMO + level-k drivers are xi_t
     Table 1                       SCENARIOS, HUMAN_RANGES, DrivingEnv._spawn_humans
@@ -54,6 +55,8 @@ class EnvConfig:
 
     scenario: str = "intersection"
     spawn_gap: float | None = None  # [s] overrides the scenario's t_spawn; math.inf: no humans (tests)
+    svo_range: tuple[float, float] | None = None  # [0-1] overrides Table 1's alpha_svo range (0, 0.5)
+    human_level: int = 2  # the humans' k in the level-k game (Sec. 5.1: 2); 0: best reply to a crossing ego
     dt: float = 0.2  # [s] SUMO and decision step. Open: episodes of 50-150 decisions, T_max steps ~2 s
     length: float = 5.0  # L_car [m] (Table 1)
     width: float = 2.0  # W_car [m] (Table 1)
@@ -211,26 +214,27 @@ def outcome_terms(t_me, t_other, stop_decel, waited, me, other, cfg: EnvConfig):
     return np.abs(t_mine - t_theirs), wait, decel, np.where(me == CROSS, waited, 0.0)
 
 
-def level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, waited_e, alpha_h, svo, cfg: EnvConfig):
-    """Level-2 decisions (CROSS / YIELD, (M,)) of M humans against the ego (Sec. 5.1, Eqs. (24)-(26)).
+def level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, waited_e, alpha_h, svo, cfg: EnvConfig, level=2):
+    """Level-k decisions (CROSS / YIELD, (M,)) of M humans against the ego (Sec. 5.1, Eqs. (24)-(26)).
 
-    level 0: the human's best reply to an ego that goes on (crosses); level 1: the ego, as the human
-    pictures it (EGO_GAME_WEIGHTS), best-responds; level 2: the human best-responds to that with U_svo.
-    A tie goes to CROSS; a human that cannot stop before the conflict point (decel_h > 1) crosses.
+    Level 0 of a player: its own best reply to an other who goes on (crosses). Level k: the ego, as
+    the human pictures it (EGO_GAME_WEIGHTS), best-responds to the level k-1 human; the human
+    best-responds with U_svo to the level k-1 ego. The paper's k = 2: h0 against a crossing ego, the
+    ego's e1 against h0, the human's reply to e1. Level 1: the human's reply to an ego that best-replies
+    to a crossing human. A tie goes to CROSS; a human that cannot stop before the conflict point (decel_h > 1) crosses.
     """
+    if level < 0:
+        raise ValueError(f"the level of the level-k game is an integer >= 0, not {level!r}")
     m = np.arange(len(t_h))
     me, other = np.array([CROSS, YIELD]).reshape(2, 1, 1), np.array([CROSS, YIELD]).reshape(1, 2, 1)
     # Eq. (24) for every pair of choices, the payoff tables (2 mine, 2 theirs, M): U_h[i, j] is the
     # human's utility when it plays i and the ego j; U_e[i, j] the ego's when it plays i
     U_h = game_utility(alpha_h, *outcome_terms(t_h, t_e, decel_h, waited_h, me, other, cfg), cfg)
     U_e = game_utility(EGO_GAME_WEIGHTS, *outcome_terms(t_e, t_h, decel_e, waited_e, me, other, cfg), cfg)
-    h0 = U_h[:, CROSS].argmax(0)  # level 0
-    e1 = U_e[:, h0, m].argmax(0)  # level 1
-    # Eq. (26): U_svo = (1 - a_svo) U_self + a_svo U_oppo, level 2 against e1
-    U_svo = (1.0 - svo) * U_h[:, e1, m] + svo * U_e[e1, :, m].T
-    return np.where(decel_h > 1.0, CROSS, U_svo.argmax(0))
-
-
+    h, e = U_h[:, CROSS].argmax(0), U_e[:, CROSS].argmax(0)  # level 0
+    for _ in range(level):  # Eq. (26): U_svo = (1 - a_svo) U_self + a_svo U_oppo, against the ego one level down
+        h, e = ((1.0 - svo) * U_h[:, e, m] + svo * U_e[e, :, m].T).argmax(0), U_e[:, h, m].argmax(0)
+    return np.where(decel_h > 1.0, CROSS, h)
 
 
 # ---- SUMO --------------------------------------------------------------------------------------------
@@ -244,6 +248,34 @@ def sumo_home() -> Path:
         if os.environ.get("SUMO_HOME"):
             return Path(os.environ["SUMO_HOME"])
         raise SystemExit("SUMO is not installed: pip install -r requirements.txt (eclipse-sumo, libsumo)")
+
+
+def scenario_files(scenario: str) -> tuple[Path, Path]:
+    """The network and route files of a scenario (scenarios/), checked to exist."""
+    files = tuple(HERE / "scenarios" / f"{scenario}.{x}.xml" for x in ("net", "rou"))
+    for f in files:
+        if not f.is_file():
+            raise SystemExit(f"missing {f}: rebuild the networks with `python scenarios/build.py`")
+    return files
+
+
+_checked: set[tuple] = set()  # network and route files SUMO has read in this process, as they were
+
+
+def check_network(net: Path, rou: Path):
+    """SUMO can read the scenario's files, or one line saying why not. Tried in a subprocess, once per process
+    and version of the files: libsumo takes the process down on a broken network (an evaluation worker too)."""
+    key = tuple((str(f), f.stat().st_mtime_ns) for f in (net, rou))
+    if key in _checked:
+        return
+    check = subprocess.run([str(sumo_home() / "bin" / "sumo"), "-n", str(net), "-r", str(rou), "--end", "0"],
+                           capture_output=True, text=True)
+    if check.returncode != 0:
+        error = next((line for line in (check.stderr + check.stdout).splitlines() if "rror" in line),
+                     f"SUMO crashed reading it (exit code {check.returncode}), is it valid XML?")
+        raise SystemExit(f"SUMO cannot load {net.name}: {error.strip()} Rebuild the networks with "
+                         "`python scenarios/build.py`.")
+    _checked.add(key)
 
 
 class Box:
@@ -264,6 +296,8 @@ class DrivingEnv:
     info: "collision", "arrival", "timeout" (bools), "crossing_time" [s] from spawn to arrival (None
     before), "cost": the constrained baselines' cost, 1.0 at the step the ego collides, else 0.0.
     libsumo runs one simulation per process (traci for sumo-gui): a new env takes it over.
+    Methods in reading order: an episode, the base action, collisions, the game, the observation;
+    then SUMO's start-up, the humans, the ego's routes, test cases, helpers.
     """
 
     _owner: dict = {}  # the env that holds this process's libsumo (False) / TraCI (True) simulation
@@ -271,203 +305,28 @@ class DrivingEnv:
     def __init__(self, cfg: EnvConfig = EnvConfig(), gui: bool = False):
         if cfg.scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {cfg.scenario!r}; choose from {sorted(SCENARIOS)}")
+        if not isinstance(cfg.human_level, (int, np.integer)) or isinstance(cfg.human_level, bool) or cfg.human_level < 0:
+            raise ValueError(f"human_level is the humans' k in the level-k game, an integer >= 0, not {cfg.human_level!r}")
+        if cfg.svo_range is not None and not (np.shape(cfg.svo_range) == (2,) and 0.0 <= cfg.svo_range[0]
+                                              <= cfg.svo_range[1] <= 1.0):
+            raise ValueError(f"svo_range is (low, high) with 0 <= low <= high <= 1, not {cfg.svo_range!r}")
+        if cfg.spawn_gap is not None and not cfg.spawn_gap > 0.0:
+            raise ValueError(f"spawn_gap is a mean gap [s] > 0 (math.inf: no humans), not {cfg.spawn_gap!r}")
         self.cfg, self.gui, self.planner_cfg = cfg, gui, cfg.planner()
         try:
             self.sim = __import__("traci" if gui else "libsumo")
         except ImportError:
             raise SystemExit("libsumo/traci is not installed: pip install -r requirements.txt") from None
         self.V = self.sim.constants
-        self.net_file, self.route_file = (HERE / "scenarios" / f"{cfg.scenario}.{x}.xml" for x in ("net", "rou"))
-        for f in (self.net_file, self.route_file):
-            if not f.is_file():
-                raise SystemExit(f"missing {f}: rebuild the networks with `python scenarios/build.py`")
+        self.net_file, self.route_file = scenario_files(cfg.scenario)
         self.observation_space = Box(np.zeros(OBS_DIM), np.ones(OBS_DIM))
         self.action_space = Box([cfg.a_min], [cfg.a_max])
         self.rng = np.random.default_rng()
-        self.running = self.ego_alive = self.checked = False
+        self.running = self.ego_alive = False
         self.tasks: list[dict] | None = None  # the ego's routes, read from SUMO at the first start
         self.jam_removals = 0  # humans removed from a gridlock (_after_sumo_step), since this env was made
 
-    def _start(self, seed: int, warmup: bool = True):
-        c, sim = self.cfg, self.sim
-        args = ["-n", str(self.net_file), "-r", str(self.route_file), "--step-length", str(c.dt),
-                "--seed", str(seed), "--default.carfollowmodel", "IDM", "--collision.check-junctions", "true",
-                "--collision.action", "warn", "--collision.mingap-factor", "0", "--time-to-teleport", "-1",
-                "--no-step-log", "true", "--no-warnings", "true",
-                # a human that cannot enter its spawn lane within 30 s is dropped: no backlog at a spawn point
-                "--max-depart-delay", "30",
-                # test cases are saved states: keep every digit of the humans' parameters
-                "--save-state.precision", "17", "--save-state.rng", "true"]
-        if self.gui:  # scenarios/gui.xml: the ego's timing written beside it
-            args += ["--start", "--quit-on-end", "--delay", "100", "--window-size", "1000,800",
-                     "--gui-settings-file", str(HERE / "scenarios" / "gui.xml")]
-        if not self.checked:  # libsumo takes the process down on a broken network: try it in a subprocess
-            check = subprocess.run([str(sumo_home() / "bin" / "sumo"), *args[:4], "--end", "0"],
-                                   capture_output=True, text=True)
-            if check.returncode != 0:
-                error = next((line for line in (check.stderr + check.stdout).splitlines() if "rror" in line),
-                             f"SUMO crashed reading it (exit code {check.returncode}), is it valid XML?")
-                raise SystemExit(f"SUMO cannot load {self.net_file.name}: {error.strip()} "
-                                 "Rebuild the networks with `python scenarios/build.py`.")
-            self.checked = True
-        if DrivingEnv._owner.get(self.gui) is not None:  # one simulation per process: take it over
-            DrivingEnv._owner[self.gui].running = DrivingEnv._owner[self.gui].ego_alive = False
-            sim.load(args)
-        else:
-            sim.start([str(sumo_home() / "bin" / ("sumo-gui" if self.gui else "sumo")), *args])
-        self.running, self.ego_alive, DrivingEnv._owner[self.gui] = True, False, self
-        for vt in ("human", "egotype"):
-            sim.vehicletype.copy("DEFAULT_VEHTYPE", vt)
-            sim.vehicletype.setLength(vt, c.length)
-            sim.vehicletype.setWidth(vt, c.width)
-            sim.vehicletype.setMaxSpeed(vt, c.v_norm)
-            sim.vehicletype.setSpeedDeviation(vt, 0.0)
-        sim.vehicletype.setImpatience("human", c.sc.impatience)
-        self.t_start = sim.simulation.getTime()
-        self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
-        self.n_humans = 0
-        self.humans: dict[str, np.ndarray] = {}  # id -> alpha1..4, svo, decel, accel, game speed (_spawn_humans)
-        self.decisions: dict[str, int] = {}  # humans now playing the game -> CROSS / YIELD
-        self.capped: set[str] = set()  # yielding humans whose speed is capped
-        if self.tasks is None:  # the network's, read once (every test case starts a new simulation)
-            self.tasks = self._ego_tasks()
-            self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
-        if warmup:
-            self._run_traffic(c.warmup)
-
-    def _run_traffic(self, seconds: float):
-        """The humans alone, no ego, for this long."""
-        for _ in range(round(seconds / self.cfg.dt)):
-            self._spawn_humans()
-            self.sim.simulationStep()
-            self._after_sumo_step()
-
-    @property
-    def spawn_gap(self) -> float:
-        return self.cfg.sc.spawn_gap if self.cfg.spawn_gap is None else self.cfg.spawn_gap
-
-    def close(self):
-        if self.running:
-            self.sim.close()
-            self.running, self.ego_alive, DrivingEnv._owner[self.gui] = False, False, None
-
-    def record_cases(self, seed: int, n: int, folder: Path) -> list[dict]:
-        """The n test cases of an evaluation round: SUMO started with `seed` and warmed up, then the
-        traffic alone, its state saved every case_gap seconds (restarted after t_sim, as in training).
-
-        Case c is snapshot c with a seed of its own, which draws the ego's route and the humans who
-        depart during the episode: every model meets the same traffic, departures and route. What the
-        humans do next depends on the ego, through the game. A saved state loads in ~3 ms, a new
-        start with its warm-up takes ~150 ms (PAPER.md, SUMO).
-        """
-        self.rng = np.random.default_rng(seed)
-        self._start(seed)
-        cases = []
-        for c in range(n):
-            if self.sim.simulation.getTime() - self.t_start > self.cfg.sc.t_sim:
-                self._start(int(self.rng.integers(2**31)))
-            self._run_traffic(self.cfg.case_gap)
-            file = str(Path(folder) / f"case{c}.xml")
-            self.sim.simulation.saveState(file)
-            alive = {*self.sim.vehicle.getIDList(), *self.sim.simulation.getPendingVehicles()}
-            cases.append(dict(file=file, seed=[seed, c], n_humans=self.n_humans,
-                              humans={h: p for h, p in self.humans.items() if h in alive}))
-        return cases
-
-    def _load_case(self, case: dict):
-        # loadState keeps something of the run before it (SUMO 1.28, PAPER.md): a lane that held vehicles
-        # can keep the one then inserted on it from moving, and after an episode that had played the case's
-        # first step a waiting human entered a step late. A new simulation (~10 ms) before each load makes
-        # a case's start the same whatever ran before.
-        self._start(case["seed"][0], warmup=False)
-        self.sim.simulation.loadState(case["file"])
-        self.humans, self.n_humans, self.decisions, self.capped = dict(case["humans"]), case["n_humans"], {}, set()
-        for h in self.sim.vehicle.getIDList():
-            self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it
-        self.rng = np.random.default_rng(case["seed"])
-        self.t_start = self.sim.simulation.getTime()
-        self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
-
-    def fingerprint(self) -> str:
-        """A hash of every vehicle now, the ego's route and the departures to come (the traffic's rng):
-        two episodes with the same fingerprint started from the same test case."""
-        vehicles = sorted((v, *np.round(self.sim.vehicle.getPosition(v), 2), round(self.sim.vehicle.getSpeed(v), 2))
-                          for v in self.sim.vehicle.getIDList())
-        state = (vehicles, self.task["route"], self.next_spawn, self.rng.bit_generator.state)
-        return hashlib.sha1(repr(state).encode()).hexdigest()[:16]
-
-    def _spawn_humans(self):
-        """Departures in the whole network with exponential gaps of mean t_spawn, on random routes (Table 1)."""
-        sim, c, rng = self.sim, self.cfg, self.rng
-        while self.next_spawn <= sim.simulation.getTime():
-            self.next_spawn += rng.exponential(self.spawn_gap)
-            vid = f"h{self.n_humans}"
-            self.n_humans += 1
-            sim.vehicle.add(vid, self.routes[rng.integers(len(self.routes))], typeID="human",
-                            depart="now", departLane="best", departSpeed="max")
-            p = {k: rng.uniform(*r) for k, r in HUMAN_RANGES.items()}
-            sim.vehicle.setAccel(vid, p["accel"])
-            sim.vehicle.setDecel(vid, p["decel"])
-            sim.vehicle.setMinGap(vid, p["min_gap"])
-            sim.vehicle.setMaxSpeed(vid, p["speed"])
-            sim.vehicle.setLaneChangeMode(vid, 0)  # lanes are chosen at departure (PAPER.md, SUMO)
-            v_game = p["speed"]  # [m/s] its speed at the conflict point, in the game
-            if c.sc.crossing_speed:  # the connections' speed limit times this factor is its own v_cr
-                v_game = rng.uniform(*c.sc.crossing_speed)
-                sim.vehicle.setSpeedFactor(vid, v_game / CONNECTION_SPEED)
-            self.humans[vid] = np.array([p["alpha1"], p["alpha2"], p["alpha3"], p["alpha4"], p["svo"],
-                                         p["decel"], p["accel"], v_game])
-
-    def _ego_tasks(self):
-        """Every (route, start lane) the ego can drive without changing lanes, with its path polyline."""
-        sim, tasks = self.sim, []
-        self.routes = sorted(r for r in sim.route.getIDList() if not r.startswith("!"))
-        for rid in self.routes:
-            edges = sim.route.getEdges(rid)
-            for idx in range(sim.edge.getLaneNumber(edges[0])):
-                lanes = self._follow(edges, f"{edges[0]}_{idx}")
-                if lanes is None:
-                    continue
-                shapes = [np.asarray(sim.lane.getShape(lane), dtype=float) for lane in lanes]
-                xy = np.concatenate(shapes)
-                xy = xy[np.r_[True, np.any(np.abs(np.diff(xy, axis=0)) > 1e-6, axis=1)]]  # joints once
-                drawn = [float(np.sum(np.hypot(*np.diff(sh, axis=0).T))) for sh in shapes]
-                starts = np.concatenate([[0.0], np.cumsum(drawn)[:-1]])
-                # SUMO's lane lengths differ from the drawn shapes (by ~10 % on the ring): a lane
-                # position is scaled to the drawn length, so s is measured along the path xy
-                lane_s = {lane: (start, d / sim.lane.getLength(lane)) for lane, start, d in zip(lanes, starts, drawn)}
-                tasks.append(dict(route=rid, lane=idx, first=lanes[0], edges=edges, xy=xy, lane_s=lane_s,
-                                  s=np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]),
-                                  dest=starts[-1] + self.cfg.destination, task=self._task_index(edges, lanes)))
-        if not tasks:
-            raise SystemExit(f"{self.route_file.name}: no route the ego can drive; rebuild the scenarios")
-        return tasks
-
-    def _follow(self, edges, lane):
-        """The lanes (internal ones included) a vehicle on `lane` takes along `edges`, or None."""
-        lanes = [lane]
-        for nxt in edges[1:]:
-            links = [link for link in self.sim.lane.getLinks(lanes[-1]) if link[0].rsplit("_", 1)[0] == nxt]
-            if not links:
-                return None
-            via = links[0][4]
-            while via:  # an internal lane, possibly split at an internal junction
-                lanes.append(via)
-                inner = self.sim.lane.getLinks(via)
-                via = inner[0][4] if inner and inner[0][4] and inner[0][4] not in lanes else ""
-            lanes.append(links[0][0])
-        return lanes
-
-    def _task_index(self, edges, lanes) -> int:
-        """h1 of Eq. (29): straight/left/right at the intersection, exit 1/2/3 at the roundabout."""
-        if self.cfg.scenario == "intersection":
-            link = [link for link in self.sim.lane.getLinks(lanes[0]) if link[0].rsplit("_", 1)[0] == edges[1]][0]
-            return {"s": 0, "l": 1, "L": 1, "r": 2, "R": 2}[link[6]]
-        # roundabout (counter-clockwise): quarter turns from the entry to the exit = exit number
-        a_in, a_out = self.sim.lane.getShape(lanes[0])[-1], self.sim.lane.getShape(lanes[-1])[0]
-        turn = (math.atan2(a_out[1], a_out[0]) - math.atan2(a_in[1], a_in[0])) % (2 * math.pi)
-        return min(2, max(0, round(turn / (math.pi / 2)) - 1))
-
+    # ---- An episode: Eqs. (1)-(2) ------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None):
         """Spawn the ego on a random free lane and route; a seed restarts SUMO and the traffic.
         options: {"route": "S_N"} picks the ego's route (scenarios/*.rou.xml); {"case": c} a test case."""
@@ -543,6 +402,7 @@ class DrivingEnv:
             self._play_level_k()
         return self.obs, reward(arrived, collided, self.v, c.v_min, c.v_max), collided or arrived, truncated, info
 
+    # ---- The base action: Eqs. (18)-(23), planner.py -----------------------------------------
     def plan(self) -> planner.Plan:
         """The base planner now (once per step): a_base of Eq. (23), the state machine's mode, and the
         planned positions [m] of the ego's centre along its path at the planner's grid times."""
@@ -551,18 +411,304 @@ class DrivingEnv:
                                       self.task["xy"], self.others, self.planner_cfg)
         return self._plan
 
+    def base_action(self) -> float:
+        """a_base of Eq. (23) in the present state, from planner.py."""
+        return self.plan().a_base
+
     def plan_xy(self) -> np.ndarray:
         """The base planner's planned trajectory now as (K, 2) points x, y [m] of the ego's centre."""
         return np.stack([np.interp(self.plan().s, self.task["s"], self.task["xy"][:, k]) for k in (0, 1)], 1)
 
+    # ---- Collisions --------------------------------------------------------------------------
+    def _collided(self) -> bool:
+        c = self.cfg
+        if EGO in self.sim.simulation.getCollidingVehiclesIDList():
+            return True
+        near = np.hypot(*(self.others[:, :2] - self.xy).T) < math.hypot(c.length, c.width)
+        return bool(near.any()) and bool(np.any(boxes_overlap(self.xy, self.heading, self.others[near, :2],
+                                                              self.others[near, 3], c.length, c.width)))
+
+    # ---- The level-k game: Eqs. (24)-(26) ----------------------------------------------------
+    def _play_level_k(self):
+        """Every human approaching a conflict point it shares with the ego plays the level-k game (k: human_level).
+
+        Each player's arrival time accelerates at its own a_max to its own speed: a human's Table 1
+        desired speed, or its crossing speed v_cr at the intersection; the ego's v_max of Eq. (31).
+        YIELD: the human's speed is capped by sqrt(2 b d_stop), so it stops before the junction of the
+        conflict point, or stop_margin before the point itself; CROSS: it stops yielding to the ego
+        (junctionModel.ignoreIDs), keeping SUMO's right of way among humans. Decisions are renewed every
+        step; a human leaves the game at the conflict point or once the ego has passed it.
+        """
+        sim, c = self.sim, self.cfg
+        foes = {}
+        for f in sim.vehicle.getJunctionFoes(EGO, c.game_horizon):
+            h, d_e, d_h, someone_yields = f[0], f[1], f[2], f[7] or f[8]
+            if someone_yields and h in self.humans and d_e > 0.0 and d_h > 0.0 and (h not in foes or d_e < foes[h][0]):
+                foes[h] = (d_e, d_h, f[6])
+        for h in [h for h in self.decisions if h not in foes]:
+            self._release(h)
+        if not foes:
+            return
+        ids = list(foes)
+        d_e, d_h = np.array([foes[h][:2] for h in ids]).T
+        p = np.array([self.humans[h] for h in ids])
+        v_h = np.array([sim.vehicle.getSpeed(h) for h in ids])
+        waited_h = np.array([sim.vehicle.getWaitingTime(h) for h in ids])
+        t_h = arrival_time(d_h, v_h, p[:, 6], p[:, 7])
+        t_e = arrival_time(d_e, self.v, c.a_max, c.v_max)
+        decel_h = v_h**2 / (2.0 * np.maximum(d_h - c.stop_margin, 0.1)) / p[:, 5]
+        decel_e = self.v**2 / (2.0 * np.maximum(d_e - c.stop_margin, 0.1)) / -c.a_min
+        choice = level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, self.waited, p[:, :4], p[:, 4], c,
+                                   c.human_level)
+        # A human inside the junction has committed: it clears the junction rather than stop in it
+        # (humans stopped mid-junction block each other: the all-way stop gridlocks) ...
+        lanes = [sim.vehicle.getLaneID(h) for h in ids]
+        inside = np.array([lane.startswith(":") for lane in lanes])
+        choice = np.where(inside, CROSS, choice)
+        # ... unless the ego is at the conflict point (within a car length): whoever can still stop yields
+        choice = np.where((d_e < c.length) & (decel_h <= 1.0), YIELD, choice)
+        for h, k, dh, vh, b, a, lane, within in zip(ids, choice, d_h, v_h, p[:, 5], p[:, 6], lanes, inside):
+            if self.decisions.get(h) != k:
+                sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
+                self.decisions[h] = k
+            if k == YIELD:
+                # It stops before the junction of the conflict point if that is the next one (at its
+                # stop line, or a ring junction's entry), else stop_margin before the conflict point.
+                stop = dh - c.stop_margin
+                if not within and sim.edge.getToJunction(lane.rsplit("_", 1)[0]) == foes[h][2][1:].rsplit("_", 2)[0]:
+                    stop = min(stop, sim.lane.getLength(lane) - sim.vehicle.getLanePosition(h) - 0.5)
+                limit = math.sqrt(2.0 * b * max(0.0, stop))
+            if k == YIELD and limit < vh + a * c.dt:  # the stopping profile binds: cap the speed
+                sim.vehicle.setSpeed(h, limit)
+                self.capped.add(h)
+            elif h in self.capped:
+                sim.vehicle.setSpeed(h, -1)
+                self.capped.discard(h)
+
+    def _release(self, h):
+        """Hand a human back to SUMO's own driving."""
+        try:
+            if self.decisions.pop(h, None) == CROSS:
+                self.sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", "")
+            if h in self.capped:
+                self.sim.vehicle.setSpeed(h, -1)
+        except self.sim.TraCIException:  # it has left the network
+            pass
+        self.capped.discard(h)
+
+    # ---- The observation: Eqs. (27)-(30) -----------------------------------------------------
+    def _read(self):
+        """Eqs. (27)-(30): read the ego and everyone within d_max (one subscription each), observe."""
+        sim, V, L = self.sim, self.V, self.cfg.length
+        ego = sim.vehicle.getSubscriptionResults(EGO)
+        self.v = ego[V.VAR_SPEED]
+        self.heading = math.radians(90.0 - ego[V.VAR_ANGLE])  # SUMO: degrees clockwise from north
+        x, y = ego[V.VAR_POSITION]  # the front bumper
+        self.xy = np.array([x - 0.5 * L * math.cos(self.heading), y - 0.5 * L * math.sin(self.heading)])
+        start, scale = self.task["lane_s"][ego[V.VAR_LANE_ID]]
+        self.s = start + scale * ego[V.VAR_LANEPOSITION]  # front bumper's arc length along the path [m]
+        road = ego[V.VAR_LANE_ID].rsplit("_", 1)[0]
+        zone = 0 if road == self.task["edges"][0] else 2 if road == self.task["edges"][-1] else 1
+        ctx = sim.vehicle.getContextSubscriptionResults(EGO)
+        ids = [k for k in ctx if k != EGO]
+        # others: centre x, y [m] (from the front bumper), speed [m/s], heading [rad], yaw rate [rad/s]
+        self.others = np.zeros((len(ids), 5))
+        if ids:
+            others = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE], 0.0) for k in ids])
+            heading = np.radians(90.0 - others[:, 3])
+            others[:, 3] = heading
+            others[:, 0] -= 0.5 * L * np.cos(heading)
+            others[:, 1] -= 0.5 * L * np.sin(heading)
+            before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading.tolist())])
+            others[:, 4] = wrap_angle(heading - before) / self.cfg.dt  # over the last step
+            self._headings = dict(zip(ids, heading.tolist()))
+            self.others = others
+        self._plan = None
+        self.obs = observe(self.xy, self.heading, self.v, self.task["task"], zone, self.others, self.cfg)
+
+    # ---- SUMO: start-up and restarts ---------------------------------------------------------
+    def _start(self, seed: int, warmup: bool = True):
+        c, sim = self.cfg, self.sim
+        args = ["-n", str(self.net_file), "-r", str(self.route_file), "--step-length", str(c.dt),
+                "--seed", str(seed), "--default.carfollowmodel", "IDM", "--collision.check-junctions", "true",
+                "--collision.action", "warn", "--collision.mingap-factor", "0", "--time-to-teleport", "-1",
+                "--no-step-log", "true", "--no-warnings", "true",
+                # a human that cannot enter its spawn lane within 30 s is dropped: no backlog at a spawn point
+                "--max-depart-delay", "30",
+                # test cases are saved states: keep every digit of the humans' parameters
+                "--save-state.precision", "17", "--save-state.rng", "true"]
+        if self.gui:  # scenarios/gui.xml: the ego's timing written beside it
+            args += ["--start", "--quit-on-end", "--delay", "100", "--window-size", "1000,800",
+                     "--gui-settings-file", str(HERE / "scenarios" / "gui.xml")]
+        check_network(self.net_file, self.route_file)
+        if DrivingEnv._owner.get(self.gui) is not None:  # one simulation per process: take it over
+            DrivingEnv._owner[self.gui].running = DrivingEnv._owner[self.gui].ego_alive = False
+            sim.load(args)
+        else:
+            sim.start([str(sumo_home() / "bin" / ("sumo-gui" if self.gui else "sumo")), *args])
+        self.running, self.ego_alive, DrivingEnv._owner[self.gui] = True, False, self
+        for vt in ("human", "egotype"):
+            sim.vehicletype.copy("DEFAULT_VEHTYPE", vt)
+            sim.vehicletype.setLength(vt, c.length)
+            sim.vehicletype.setWidth(vt, c.width)
+            sim.vehicletype.setMaxSpeed(vt, c.v_norm)
+            sim.vehicletype.setSpeedDeviation(vt, 0.0)
+        sim.vehicletype.setImpatience("human", c.sc.impatience)
+        self.t_start = sim.simulation.getTime()
+        self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
+        self.n_humans = 0
+        self.humans: dict[str, np.ndarray] = {}  # id -> alpha1..4, svo, decel, accel, game speed (_spawn_humans)
+        self.decisions: dict[str, int] = {}  # humans now playing the game -> CROSS / YIELD
+        self.capped: set[str] = set()  # yielding humans whose speed is capped
+        if self.tasks is None:  # the network's, read once (every test case starts a new simulation)
+            self.tasks = self._ego_tasks()
+            self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
+        if warmup:
+            self._run_traffic(c.warmup)
+
+    def _run_traffic(self, seconds: float):
+        """The humans alone, no ego, for this long."""
+        for _ in range(round(seconds / self.cfg.dt)):
+            self._spawn_humans()
+            self.sim.simulationStep()
+            self._after_sumo_step()
+
+    def close(self):
+        if self.running:
+            self.sim.close()
+            self.running, self.ego_alive, DrivingEnv._owner[self.gui] = False, False, None
+
+    @property
+    def spawn_gap(self) -> float:
+        return self.cfg.sc.spawn_gap if self.cfg.spawn_gap is None else self.cfg.spawn_gap
+
+    # ---- Human drivers: Table 1 --------------------------------------------------------------
+    def _spawn_humans(self):
+        """Departures in the whole network with exponential gaps of mean t_spawn, on random routes (Table 1)."""
+        sim, c, rng = self.sim, self.cfg, self.rng
+        while self.next_spawn <= sim.simulation.getTime():
+            self.next_spawn += rng.exponential(self.spawn_gap)
+            vid = f"h{self.n_humans}"
+            self.n_humans += 1
+            sim.vehicle.add(vid, self.routes[rng.integers(len(self.routes))], typeID="human",
+                            depart="now", departLane="best", departSpeed="max")
+            # svo_range replaces one range: the same draws in the same order, whatever it is
+            ranges = HUMAN_RANGES if c.svo_range is None else {**HUMAN_RANGES, "svo": c.svo_range}
+            p = {k: rng.uniform(*r) for k, r in ranges.items()}
+            sim.vehicle.setAccel(vid, p["accel"])
+            sim.vehicle.setDecel(vid, p["decel"])
+            sim.vehicle.setMinGap(vid, p["min_gap"])
+            sim.vehicle.setMaxSpeed(vid, p["speed"])
+            sim.vehicle.setLaneChangeMode(vid, 0)  # lanes are chosen at departure (PAPER.md, SUMO)
+            v_game = p["speed"]  # [m/s] its speed at the conflict point, in the game
+            if c.sc.crossing_speed:  # the connections' speed limit times this factor is its own v_cr
+                v_game = rng.uniform(*c.sc.crossing_speed)
+                sim.vehicle.setSpeedFactor(vid, v_game / CONNECTION_SPEED)
+            self.humans[vid] = np.array([p["alpha1"], p["alpha2"], p["alpha3"], p["alpha4"], p["svo"],
+                                         p["decel"], p["accel"], v_game])
+
+    # ---- The ego's routes --------------------------------------------------------------------
+    def _ego_tasks(self):
+        """Every (route, start lane) the ego can drive without changing lanes, with its path polyline."""
+        sim, tasks = self.sim, []
+        self.routes = sorted(r for r in sim.route.getIDList() if not r.startswith("!"))
+        for rid in self.routes:
+            edges = sim.route.getEdges(rid)
+            for idx in range(sim.edge.getLaneNumber(edges[0])):
+                lanes = self._follow(edges, f"{edges[0]}_{idx}")
+                if lanes is None:
+                    continue
+                shapes = [np.asarray(sim.lane.getShape(lane), dtype=float) for lane in lanes]
+                xy = np.concatenate(shapes)
+                xy = xy[np.r_[True, np.any(np.abs(np.diff(xy, axis=0)) > 1e-6, axis=1)]]  # joints once
+                drawn = [float(np.sum(np.hypot(*np.diff(sh, axis=0).T))) for sh in shapes]
+                starts = np.concatenate([[0.0], np.cumsum(drawn)[:-1]])
+                # SUMO's lane lengths differ from the drawn shapes (by ~10 % on the ring): a lane
+                # position is scaled to the drawn length, so s is measured along the path xy
+                lane_s = {lane: (start, d / sim.lane.getLength(lane)) for lane, start, d in zip(lanes, starts, drawn)}
+                tasks.append(dict(route=rid, lane=idx, first=lanes[0], edges=edges, xy=xy, lane_s=lane_s,
+                                  s=np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]),
+                                  dest=starts[-1] + self.cfg.destination, task=self._task_index(edges, lanes)))
+        if not tasks:
+            raise SystemExit(f"{self.route_file.name}: no route the ego can drive; rebuild the scenarios")
+        return tasks
+
+    def _follow(self, edges, lane):
+        """The lanes (internal ones included) a vehicle on `lane` takes along `edges`, or None."""
+        lanes = [lane]
+        for nxt in edges[1:]:
+            links = [link for link in self.sim.lane.getLinks(lanes[-1]) if link[0].rsplit("_", 1)[0] == nxt]
+            if not links:
+                return None
+            via = links[0][4]
+            while via:  # an internal lane, possibly split at an internal junction
+                lanes.append(via)
+                inner = self.sim.lane.getLinks(via)
+                via = inner[0][4] if inner and inner[0][4] and inner[0][4] not in lanes else ""
+            lanes.append(links[0][0])
+        return lanes
+
+    def _task_index(self, edges, lanes) -> int:
+        """h1 of Eq. (29): straight/left/right at the intersection, exit 1/2/3 at the roundabout."""
+        if self.cfg.scenario == "intersection":
+            link = [link for link in self.sim.lane.getLinks(lanes[0]) if link[0].rsplit("_", 1)[0] == edges[1]][0]
+            return {"s": 0, "l": 1, "L": 1, "r": 2, "R": 2}[link[6]]
+        # roundabout (counter-clockwise): quarter turns from the entry to the exit = exit number
+        a_in, a_out = self.sim.lane.getShape(lanes[0])[-1], self.sim.lane.getShape(lanes[-1])[0]
+        turn = (math.atan2(a_out[1], a_out[0]) - math.atan2(a_in[1], a_in[0])) % (2 * math.pi)
+        return min(2, max(0, round(turn / (math.pi / 2)) - 1))
+
+    # ---- Test cases: Sec. 5.3 ----------------------------------------------------------------
+    def record_cases(self, seed: int, n: int, folder: Path) -> list[dict]:
+        """The n test cases of an evaluation round: SUMO started with `seed` and warmed up, then the
+        traffic alone, its state saved every case_gap seconds (restarted after t_sim, as in training).
+
+        Case c is snapshot c with a seed of its own, which draws the ego's route and the humans who
+        depart during the episode: every model meets the same traffic, departures and route. What the
+        humans do next depends on the ego, through the game. A case loads in about 8 ms (a new
+        simulation, then its saved state: _load_case), a new start with its warm-up takes about 50 ms.
+        """
+        self.rng = np.random.default_rng(seed)
+        self._start(seed)
+        cases = []
+        for c in range(n):
+            if self.sim.simulation.getTime() - self.t_start > self.cfg.sc.t_sim:
+                self._start(int(self.rng.integers(2**31)))
+            self._run_traffic(self.cfg.case_gap)
+            file = str(Path(folder) / f"case{c}.xml")
+            self.sim.simulation.saveState(file)
+            alive = {*self.sim.vehicle.getIDList(), *self.sim.simulation.getPendingVehicles()}
+            cases.append(dict(file=file, seed=[seed, c], n_humans=self.n_humans,
+                              humans={h: p for h, p in self.humans.items() if h in alive}))
+        return cases
+
+    def _load_case(self, case: dict):
+        # loadState keeps something of the run before it (SUMO 1.28, PAPER.md): a lane that held vehicles
+        # can keep the one then inserted on it from moving, and after an episode that had played the case's
+        # first step a waiting human entered a step late. A new simulation (~10 ms) before each load makes
+        # a case's start the same whatever ran before.
+        self._start(case["seed"][0], warmup=False)
+        self.sim.simulation.loadState(case["file"])
+        self.humans, self.n_humans, self.decisions, self.capped = dict(case["humans"]), case["n_humans"], {}, set()
+        for h in self.sim.vehicle.getIDList():
+            self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it
+        self.rng = np.random.default_rng(case["seed"])
+        self.t_start = self.sim.simulation.getTime()
+        self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
+
+    def fingerprint(self) -> str:
+        """A hash of every vehicle now, the ego's route and the departures to come (the traffic's rng):
+        two episodes with the same fingerprint started from the same test case."""
+        vehicles = sorted((v, *np.round(self.sim.vehicle.getPosition(v), 2), round(self.sim.vehicle.getSpeed(v), 2))
+                          for v in self.sim.vehicle.getIDList())
+        state = (vehicles, self.task["route"], self.next_spawn, self.rng.bit_generator.state)
+        return hashlib.sha1(repr(state).encode()).hexdigest()[:16]
+
+    # ---- Helpers -----------------------------------------------------------------------------
     def show(self, text: str):
         """Write `text` beside the ego in sumo-gui (its parameter "timing", scenarios/gui.xml)."""
         if self.gui:
             self.sim.vehicle.setParameter(EGO, "timing", text)
-
-    def base_action(self) -> float:
-        """a_base of Eq. (23) in the present state, from planner.py."""
-        return self.plan().a_base
 
     def _info(self, collided, arrived, timeout, t):
         return dict(collision=collided, arrival=arrived, timeout=timeout, crossing_time=t if arrived else None,
@@ -600,106 +746,3 @@ class DrivingEnv:
             self.humans.pop(h, None)
             self.decisions.pop(h, None)
             self.capped.discard(h)
-
-    def _read(self):
-        """Eqs. (27)-(30): read the ego and everyone within d_max (one subscription each), observe."""
-        sim, V, L = self.sim, self.V, self.cfg.length
-        ego = sim.vehicle.getSubscriptionResults(EGO)
-        self.v = ego[V.VAR_SPEED]
-        self.heading = math.radians(90.0 - ego[V.VAR_ANGLE])  # SUMO: degrees clockwise from north
-        x, y = ego[V.VAR_POSITION]  # the front bumper
-        self.xy = np.array([x - 0.5 * L * math.cos(self.heading), y - 0.5 * L * math.sin(self.heading)])
-        start, scale = self.task["lane_s"][ego[V.VAR_LANE_ID]]
-        self.s = start + scale * ego[V.VAR_LANEPOSITION]  # front bumper's arc length along the path [m]
-        road = ego[V.VAR_LANE_ID].rsplit("_", 1)[0]
-        zone = 0 if road == self.task["edges"][0] else 2 if road == self.task["edges"][-1] else 1
-        ctx = sim.vehicle.getContextSubscriptionResults(EGO)
-        ids = [k for k in ctx if k != EGO]
-        # others: centre x, y [m] (from the front bumper), speed [m/s], heading [rad], yaw rate [rad/s]
-        self.others = np.zeros((len(ids), 5))
-        if ids:
-            others = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE], 0.0) for k in ids])
-            heading = np.radians(90.0 - others[:, 3])
-            others[:, 3] = heading
-            others[:, 0] -= 0.5 * L * np.cos(heading)
-            others[:, 1] -= 0.5 * L * np.sin(heading)
-            before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading.tolist())])
-            others[:, 4] = wrap_angle(heading - before) / self.cfg.dt  # over the last step
-            self._headings = dict(zip(ids, heading.tolist()))
-            self.others = others
-        self._plan = None
-        self.obs = observe(self.xy, self.heading, self.v, self.task["task"], zone, self.others, self.cfg)
-
-    def _collided(self) -> bool:
-        c = self.cfg
-        if EGO in self.sim.simulation.getCollidingVehiclesIDList():
-            return True
-        near = np.hypot(*(self.others[:, :2] - self.xy).T) < math.hypot(c.length, c.width)
-        return bool(near.any()) and bool(np.any(boxes_overlap(self.xy, self.heading, self.others[near, :2],
-                                                              self.others[near, 3], c.length, c.width)))
-
-    def _play_level_k(self):
-        """Every human approaching a conflict point it shares with the ego plays the level-2 game.
-
-        Each player's arrival time accelerates at its own a_max to its own speed: a human's Table 1
-        desired speed, or its crossing speed v_cr at the intersection; the ego's v_max of Eq. (31).
-        YIELD: the human's speed is capped by sqrt(2 b d_stop), so it stops before the junction of the
-        conflict point, or stop_margin before the point itself; CROSS: it stops yielding to the ego
-        (junctionModel.ignoreIDs), keeping SUMO's right of way among humans. Decisions are renewed every
-        step; a human leaves the game at the conflict point or once the ego has passed it.
-        """
-        sim, c = self.sim, self.cfg
-        foes = {}
-        for f in sim.vehicle.getJunctionFoes(EGO, c.game_horizon):
-            h, d_e, d_h, someone_yields = f[0], f[1], f[2], f[7] or f[8]
-            if someone_yields and h in self.humans and d_e > 0.0 and d_h > 0.0 and (h not in foes or d_e < foes[h][0]):
-                foes[h] = (d_e, d_h, f[6])
-        for h in [h for h in self.decisions if h not in foes]:
-            self._release(h)
-        if not foes:
-            return
-        ids = list(foes)
-        d_e, d_h = np.array([foes[h][:2] for h in ids]).T
-        p = np.array([self.humans[h] for h in ids])
-        v_h = np.array([sim.vehicle.getSpeed(h) for h in ids])
-        waited_h = np.array([sim.vehicle.getWaitingTime(h) for h in ids])
-        t_h = arrival_time(d_h, v_h, p[:, 6], p[:, 7])
-        t_e = arrival_time(d_e, self.v, c.a_max, c.v_max)
-        decel_h = v_h**2 / (2.0 * np.maximum(d_h - c.stop_margin, 0.1)) / p[:, 5]
-        decel_e = self.v**2 / (2.0 * np.maximum(d_e - c.stop_margin, 0.1)) / -c.a_min
-        choice = level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, self.waited, p[:, :4], p[:, 4], c)
-        # A human inside the junction has committed: it clears the junction rather than stop in it
-        # (humans stopped mid-junction block each other: the all-way stop gridlocks) ...
-        lanes = [sim.vehicle.getLaneID(h) for h in ids]
-        inside = np.array([lane.startswith(":") for lane in lanes])
-        choice = np.where(inside, CROSS, choice)
-        # ... unless the ego is at the conflict point (within a car length): whoever can still stop yields
-        choice = np.where((d_e < c.length) & (decel_h <= 1.0), YIELD, choice)
-        for h, k, dh, vh, b, a, lane, within in zip(ids, choice, d_h, v_h, p[:, 5], p[:, 6], lanes, inside):
-            if self.decisions.get(h) != k:
-                sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
-                self.decisions[h] = k
-            if k == YIELD:
-                # It stops before the junction of the conflict point if that is the next one (at its
-                # stop line, or a ring junction's entry), else stop_margin before the conflict point.
-                stop = dh - c.stop_margin
-                if not within and sim.edge.getToJunction(lane.rsplit("_", 1)[0]) == foes[h][2][1:].rsplit("_", 2)[0]:
-                    stop = min(stop, sim.lane.getLength(lane) - sim.vehicle.getLanePosition(h) - 0.5)
-                limit = math.sqrt(2.0 * b * max(0.0, stop))
-            if k == YIELD and limit < vh + a * c.dt:  # the stopping profile binds: cap the speed
-                sim.vehicle.setSpeed(h, limit)
-                self.capped.add(h)
-            elif h in self.capped:
-                sim.vehicle.setSpeed(h, -1)
-                self.capped.discard(h)
-
-    def _release(self, h):
-        """Hand a human back to SUMO's own driving."""
-        try:
-            if self.decisions.pop(h, None) == CROSS:
-                self.sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", "")
-            if h in self.capped:
-                self.sim.vehicle.setSpeed(h, -1)
-        except self.sim.TraCIException:  # it has left the network
-            pass
-        self.capped.discard(h)
