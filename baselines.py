@@ -13,8 +13,12 @@ info["cost"] (1 at a collision). A collision ends the episode, so J_c is the col
 As OmniSafe and Safe-Policy-Optimization (SafePO) do it, departures commented. Map: SafeRLConfig; J_c and lambda:
 CostConstraint, Lagrange, PIDLagrange (Stooke's Alg. 2); ConstrainedTrainer (on tarl.Trainer); SAC-Lag, SAC-PID:
 ConstrainedSAC, cost_td_target, SafeSACTrainer; PPO-Lag, CPO: OnPolicyTrainer, OnPolicyAgent, GaussianPolicy, gae
-(Schulman et al. 2016), PPO's Eq. (7) ppo_clip_loss, lagrangian_advantage, CPO's Eqs. (11)-(14) conjugate_gradient,
-fisher_vector_product, cpo_direction, backtracking_line_search.
+(Schulman et al. 2016), ppo_clip_loss (PPO, Schulman et al. 2017, Eq. (7)), lagrangian_advantage; CPO's update
+(Achiam et al. 2017, Eqs. (11)-(14)): conjugate_gradient, fisher_vector_product, cpo_direction,
+backtracking_line_search.
+
+Eq. (n) alone is the TARL paper's (PAPER.md); another paper's equation carries that paper's name on its line, as in
+"PPO (Schulman et al. 2017), Eq. (7)".
 """
 from __future__ import annotations
 
@@ -49,7 +53,7 @@ class SafeRLConfig:
     rollout: int = 2048  # N [steps] per update (CleanRL): SafePO's 20,000 would give 5 updates in 100k steps
     epochs: int = 10  # passes over a rollout, of PPO and of the value fits (CleanRL; SafePO: 40, KL-stopped, 20k)
     minibatch: int = 64  # samples per gradient step (SafePO; CleanRL's 2,048 / 32)
-    clip: float = 0.2  # epsilon of PPO's Eq. (7)
+    clip: float = 0.2  # epsilon of PPO (Schulman et al. 2017), Eq. (7)
     policy_lr: float = 3e-4  # PPO-Lag's Adam; constant (SafePO and CleanRL anneal it to 0 over the run)
     value_lr: float = 1e-3  # Adam of V_r and V_c (OmniSafe's critic lr)
     cpo_delta: float = 0.01  # delta of CPO's trust region on the mean KL (SafePO, OmniSafe)
@@ -70,11 +74,11 @@ def gae(rewards: Tensor, values: Tensor, dones: Tensor, last_value: float, gamma
     next_values, ends = torch.cat([values[1:], values.new_tensor([last_value])]), dones
     if truncated is not None:
         next_values, ends = torch.where(truncated.bool(), final_values, next_values), torch.maximum(dones, truncated)
-    # GAE, Sec. 3: delta_t = r_t + gamma V(s_{t+1}) - V(s_t), with V(terminal) = 0
+    # GAE (Schulman et al. 2016), Sec. 3: delta_t = r_t + gamma V(s_{t+1}) - V(s_t), with V(terminal) = 0
     deltas = rewards + gamma * (1.0 - dones) * next_values - values
     advantages, running = torch.zeros_like(values), 0.0
     for t in reversed(range(len(rewards))):
-        # GAE, Eq. (16): A_t = sum_l (gamma lam)^l delta_{t+l}, i.e. A_t = delta_t + gamma lam A_{t+1}
+        # GAE (Schulman et al. 2016), Eq. (16): A_t = sum_l (gamma lam)^l delta_{t+l} = delta_t + gamma lam A_{t+1}
         running = deltas[t] + gamma * lam * (1.0 - ends[t]) * running
         advantages[t] = running
     return advantages, advantages + values
@@ -82,7 +86,7 @@ def gae(rewards: Tensor, values: Tensor, dones: Tensor, last_value: float, gamma
 
 def ppo_clip_loss(ratio: Tensor, advantages: Tensor, clip: float) -> Tensor:
     """-L^CLIP of PPO, minimised. ratio (B,): pi_theta(a|s) / pi_old(a|s); clip: epsilon."""
-    # Eq. (7): L^CLIP = E[min(r A, clip(r, 1 - eps, 1 + eps) A)]
+    # PPO (Schulman et al. 2017), Eq. (7): L^CLIP = E[min(r A, clip(r, 1 - eps, 1 + eps) A)]
     return -torch.min(ratio * advantages, ratio.clamp(1.0 - clip, 1.0 + clip) * advantages).mean()
 
 
@@ -154,7 +158,7 @@ class CostConstraint:
             vars(self.multiplier).update(state["multiplier"])
 
 
-# ---- CPO's update, Eq. (11): max g^T x  s.t.  c + b^T x <= 0,  1/2 x^T H x <= delta  (Achiam et al. 2017)
+# ---- CPO's update (Achiam et al. 2017), Eq. (11): max g^T x  s.t.  c + b^T x <= 0,  1/2 x^T H x <= delta
 # x = theta - theta_k; g, b: gradients of the reward and cost surrogates; c = J_c - d; H: Hessian of the KL
 
 
@@ -180,21 +184,24 @@ def fisher_vector_product(params: list[Tensor], kl: Callable[[], Tensor], dampin
 
 
 def cpo_direction(g: Tensor, b: Tensor, c: float, Hinv_g: Tensor, Hinv_b: Tensor, delta: float) -> tuple[Tensor, int]:
-    """CPO's step x* for Eq. (11) and its case (Achiam et al. 2017; numbered as in SafePO and OmniSafe). With q
-    = g^T H^-1 g, r = g^T H^-1 b, s = b^T H^-1 b, A = q - r^2 / s, B = 2 delta - c^2 / s:
+    """The step x* for CPO (Achiam et al. 2017), Eq. (11), and its case (numbered as in SafePO and OmniSafe). With
+    q = g^T H^-1 g, r = g^T H^-1 b, s = b^T H^-1 b, A = q - r^2 / s, B = 2 delta - c^2 / s:
       4: b ~ 0 and c < 0, 3: c < 0, B < 0 (the trust region is feasible): TRPO's sqrt(2 delta / q) H^-1 g;
-      2: c < 0 <= B, 1: c >= 0, B >= 0 (c + b^T x = 0 crosses the trust region): Eq. (13) from Eq. (12);
-      0: c >= 0, B < 0 (no feasible point): Eq. (14)'s recovery x* = -sqrt(2 delta / s) H^-1 b."""
+      2: c < 0 <= B, 1: c >= 0, B >= 0 (c + b^T x = 0 crosses the trust region):
+         CPO (Achiam et al. 2017), Eq. (13) from Eq. (12);
+      0: c >= 0, B < 0 (no feasible point): the recovery x* = -sqrt(2 delta / s) H^-1 b,
+         CPO (Achiam et al. 2017), Eq. (14)."""
     q, r, s = float(g @ Hinv_g), float(g @ Hinv_b), float(b @ Hinv_b)
     if float(b @ b) <= 1e-6 and c < 0:  # the cost surrogate is flat: TRPO (Schulman et al. 2015)
         return math.sqrt(2 * delta / (q + EPS)) * Hinv_g, 4
     A, B = q - r * r / (s + EPS), 2 * delta - c * c / (s + EPS)
     if c < 0 and B < 0:
         return math.sqrt(2 * delta / (q + EPS)) * Hinv_g, 3
-    if B < 0:  # Eq. (14): the infeasible recovery, the steepest decrease of the cost in the trust region
+    if B < 0:  # CPO (Achiam et al. 2017), Eq. (14): the infeasible recovery, the cost's steepest descent in the region
         return -math.sqrt(2 * delta / (s + EPS)) * Hinv_b, 0
-    # Eq. (12) in closed form (appendix): the better of f_a (nu* > 0) and f_b (nu* = 0), each maximiser projected
-    # on its interval. The appendix minimises g^T x; for our ascent g, r flips sign (SafePO and OmniSafe do not).
+    # CPO (Achiam et al. 2017), Eq. (12) in closed form (its appendix): the better of f_a (nu* > 0) and f_b (nu* = 0),
+    # each maximiser projected on its interval. The appendix minimises g^T x; for our ascent g, r flips sign (SafePO
+    # and OmniSafe do not).
     split = max(-r / (c - EPS if c < 0 else c + EPS), 0.0)  # lambda c + r changes sign (lambda >= 0)
     (lo_a, hi_a), (lo_b, hi_b) = ((0.0, split), (split, math.inf)) if c < 0 else ((split, math.inf), (0.0, split))
     lam_a = min(max(math.sqrt(A / (B + EPS)), lo_a), hi_a)
@@ -203,7 +210,7 @@ def cpo_direction(g: Tensor, b: Tensor, c: float, Hinv_g: Tensor, Hinv_b: Tensor
     f_b = -0.5 * (q / (lam_b + EPS) + 2 * delta * lam_b)
     lam_star = lam_a if f_a >= f_b else lam_b
     nu_star = max(0.0, lam_star * c + r) / (s + EPS)
-    # Eq. (13): x* = (1 / lambda*) H^-1 (g - nu* b)
+    # CPO (Achiam et al. 2017), Eq. (13): x* = (1 / lambda*) H^-1 (g - nu* b)
     return (Hinv_g - nu_star * Hinv_b) / (lam_star + EPS), 1 if c >= 0 else 2
 
 
@@ -225,8 +232,8 @@ class ConstrainedTrainer(tarl.Trainer):
     episodes in `constraint`, SAC-Lag's and SAC-PID's lambda updated at every episode's end, constraint_log.csv."""
 
     def __init__(self, env: tarl.DrivingEnv, algo: str, tc: tarl.TrainConfig, sac_cfg: tarl.SACConfig, seed, out, log):
-        super().__init__(env, "sac", tc, sac_cfg, seed, out, log)  # plain SAC's actor loop
-        self.algo, self.episode_cost, self.episode_steps = algo, 0.0, 0
+        super().__init__(env, algo, tc, sac_cfg, seed, out, log, timing="none", step_one=False)  # plain SAC's loop
+        self.episode_cost, self.episode_steps = 0.0, 0
         self.log = tarl.TrainLog(out, tc.steps, lambda line: log(f"{line} | J_c {self.constraint.cost:.3f}" + (
             f", lambda {self.constraint.multiplier.value:.3f}" if self.constraint.multiplier else "")))
 
@@ -291,7 +298,9 @@ class ConstrainedSAC(tarl.SAC):
 class SafeSACTrainer(ConstrainedTrainer):
     """SAC-Lag ("sac-lag") and SAC-PID ("sac-pid"): plain SAC's actor loop with ConstrainedSAC."""
 
-    def __init__(self, env, algo: str, tc, sac_cfg=tarl.SACConfig(), cfg=SafeRLConfig(), seed=0, out=None, log=print):
+    def __init__(self, env, algo: str, tc, sac_cfg=tarl.SACConfig(), seed=0, out=None, log=print, timing="none",
+                 step_one=False, cfg=SafeRLConfig()):
+        assert timing == "none" and not step_one, "the safe-RL rows are the actor alone (experiment.ROWS)"
         super().__init__(env, algo, tc, sac_cfg, seed, out, log)
         space, d = env.action_space, cfg.cost_limit
         multiplier = Lagrange(d, cfg.lagrange_lr) if algo == "sac-lag" else PIDLagrange(d, *cfg.pid_gains)
@@ -362,7 +371,9 @@ class OnPolicyTrainer(ConstrainedTrainer):
     """PPO-Lag ("ppo-lag") and CPO ("cpo") as CleanRL's ppo_continuous_action.py: tarl.Trainer.run repeats
     actor_loop, here a rollout of N steps with GAE for reward and cost, a policy update and the value fits."""
 
-    def __init__(self, env, algo: str, tc, cfg=SafeRLConfig(), seed=0, out=None, log=print):
+    def __init__(self, env, algo: str, tc, sac_cfg=None, seed=0, out=None, log=print, timing="none", step_one=False,
+                 cfg=SafeRLConfig()):
+        assert timing == "none" and not step_one, "the safe-RL rows are the actor alone (experiment.ROWS)"
         super().__init__(env, algo, tc, tarl.SACConfig(buffer_size=1), seed, out, log)  # its SAC replaced here
         multiplier = Lagrange(cfg.cost_limit, cfg.rollout_lagrange_lr) if algo == "ppo-lag" else None
         columns = ("step", "J_c", "lambda") if multiplier else ("step", "J_c", "cpo_case", "trial")
@@ -402,7 +413,8 @@ class OnPolicyTrainer(ConstrainedTrainer):
         return data
 
     def ppo_lag_update(self, data: dict[str, Tensor]):
-        """lambda once per rollout, then epochs of minibatch steps on the clipped surrogate of Eq. (7)."""
+        """lambda once per rollout, then epochs of minibatch steps on the clipped surrogate L^CLIP of PPO
+        (Schulman et al. 2017), Eq. (7)."""
         c, obs = self.cfg, data["obs"]
         lam = self.constraint.update(self.step)  # before the policy, from the recent episodes (SafePO, OmniSafe)
         adv = lagrangian_advantage(data["adv_rew"], data["adv_cost"], lam)
@@ -443,8 +455,3 @@ class OnPolicyTrainer(ConstrainedTrainer):
         x, trial = backtracking_line_search(step, evaluate, violation, c.cpo_delta, c.backtrack, c.search_steps)
         vector_to_parameters(theta + x, params)
         self.constraint.history.append([self.step, round(J_c, 4), case, trial])
-
-
-def make_trainer(algo: str, env: tarl.DrivingEnv, tc: tarl.TrainConfig, seed: int = 0, out=None, log=print):
-    """The trainer of a safe-RL row of Table 3 (tarl.make_trainer's): run(), load(), rows(), step."""
-    return (SafeSACTrainer if algo.startswith("sac-") else OnPolicyTrainer)(env, algo, tc, seed=seed, out=out, log=log)

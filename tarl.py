@@ -1,42 +1,37 @@
-"""tarl: timing-aware reinforcement learning for autonomous driving, in SUMO.
+"""tarl: timing-aware reinforcement learning for autonomous driving, in SUMO: the paper's method.
 
 Reference implementation of Li, Wu, He, "Act Better by Timing: A timing-Aware Reinforcement
-Learning for Autonomous Driving" (Sec. 4 and 5.3-5.5). In the world of world.py, the actor (SAC)
-picks the ego's acceleration; the timing taker (discrete SAC) picks when it should be executed,
-learning in a timing imagination; the timing factor beta(T) blends the actor's action with the
-base action of planner.py. The safe-RL rows of Table 3 live in baselines.py, on these pieces.
+Learning for Autonomous Driving", Sec. 4. In the world of world.py, the actor (SAC) picks the ego's
+acceleration; the timing taker (discrete SAC) picks when it should be executed, learning in a timing
+imagination; the timing factor beta(T) blends the actor's action with the base action of planner.py.
+This file holds the method alone. The experiment around it (Table 3's rows, evaluation, the command
+line) is experiment.py; the safe-RL rows are baselines.py.
 
-    python tarl.py --scenario roundabout                 # train TARL, then Table 3
+    python tarl.py --scenario roundabout                 # train TARL, then evaluate it as Table 3 does
     python tarl.py --scenario intersection --algo lattice-idm --eval-rounds 2 --eval-cases 20
 
-Equations are cited by the number printed in the paper's PDF. PAPER.md maps them to the LaTeX
-labels, has the notes cited as "PAPER.md, note n", and every value the paper leaves open.
+Equations are cited by the number printed in the paper's PDF (PAPER.md maps them to the LaTeX labels
+and has the notes cited as "PAPER.md, note n").
 
-    Eqs. (6), (11) timing factor  beta;  Eqs. (7), (12): blend, execute;  Eq. (5): timing_input
-    Eqs. (8), (9), (13) critics   discounted_sum, td_target, critic_loss;  Eqs. (10), (14): policy_loss
+    Eq. (5) timing_input;  Eqs. (6), (11) beta;  Eqs. (7), (12) blend, execute;  Eq. (8) discounted_sum
+    Eqs. (9), (13) td_target, critic_loss;  Eqs. (10), (14) policy_loss
+    Sec. 4, open values           TimingConfig: w of Eq. (6) and T_max, their one home
     Table 2                       SACConfig, SAC, ReplayBuffer
-    Algorithm 1                   TrainConfig, Trainer.run, imagination_loop, actor_loop
-    Sec. 5.3, Table 3, Sec. 5.5   Driver, rollout, play_round, evaluate, summarize, main
+    Algorithm 1                   TrainConfig, Trainer.run, Trainer.imagination_loop, Trainer.actor_loop
+    How each row acts             Driver, execute
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import copy
-import hashlib
-import json
 import math
 import os
-import shutil
-import signal
-import subprocess
-import tempfile
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
-# Before torch loads OpenMP: its threads wait passively. Spinning, two threads beside another busy
-# process trained at 1.6 steps/s instead of 65; on idle cores passive waiting costs ~20 % (README, Speed).
+# Run as `python tarl.py`: OpenMP's threads wait passively, set before torch loads OpenMP. Spinning, two
+# threads beside another busy process trained at 1.6 steps/s instead of 65 (RESULTS.md, History).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
@@ -45,17 +40,26 @@ import torch.nn.functional as F  # noqa: E402
 
 from world import CROSS, OBS_DIM, SCENARIOS, YIELD, DrivingEnv, EnvConfig  # noqa: F401 (tarl.X for users)
 
-# Timing (Sec. 4), open. beta(1) = 1 and beta(2) = 1/2 for every w; the text asks beta(3) to be
-# intermediate and beta(T >= 4) near 0 (PAPER.md, note 5): with w = 6, beta(3) = 0.117, beta(4) = 0.045.
-OMEGA = 6.0  # w of Eq. (6) [-]
-T_MAX = 10  # T_max [steps]: 10 x 0.2 s = 2 s, the longest wait "for a better chance"
+
+@dataclass(frozen=True)
+class TimingConfig:
+    """w and T_max (Sec. 4, both open): their one home. The Trainer (TrainConfig.timing), every Driver, the
+    checkpoint and the evaluation workers (each Driver carries its own) read it when they act: to change w,
+    pass another, e.g. TrainConfig(timing=TimingConfig(omega=4.0)) or `--omega 4`.
+
+    beta(1) = 1 and beta(2) = 1/2 for every w; the text asks beta(3) to be intermediate and beta(T >= 4)
+    near 0 (PAPER.md, note 5): with w = 6, beta(3) = 0.117, beta(4) = 0.045."""
+
+    omega: float = 6.0  # w of Eq. (6) [-]
+    t_max: int = 10  # T_max [steps]: 10 x 0.2 s = 2 s, the longest wait "for a better chance"
 
 
-def beta(T, dt=1, omega: float = OMEGA):
+def beta(T, dt=1, *, omega: float):
     """Eq. (6): beta(T, dt) = 1/2 (tanh(w (dt / T - 1/2)) / tanh(w / 2) + 1), dt = 1..T; with dt = 1
-    the timing factor beta(T) of Eq. (11). Vectorised over T and dt."""
+    the timing factor beta(T) of Eq. (11). Vectorised over T and dt; w = omega (TimingConfig)."""
     T, dt = np.asarray(T, dtype=float), np.asarray(dt, dtype=float)
     return 0.5 * (np.tanh(omega * (dt / T - 0.5)) / np.tanh(omega / 2.0) + 1.0)
+
 
 
 def blend(a, a_base, b):
@@ -330,37 +334,60 @@ class ReplayBuffer:
             array[: self.size] = state[key].numpy()
 
 
-# ---- Driving: how each row of Table 3 acts, and one recorded episode ---------------------------------
+
+# ---- Driving: how each row of Table 3 acts ----------------------------------------------------------
 
 
 class Driver:
     """How a row of Table 3 acts: act(obs, env) -> (a, T, beta); the ego executes Eq. (12) (execute).
 
     timing: "taker"   TARL: T ~ the timing taker (Alg. 1 line 18), beta = beta(T) of Eq. (11)
-            "fixed"   ablation tarl-fixed-t: T = 2 always, beta = 1/2
+            "phased"  tarl-consistent (beyond the paper, PAPER.md): T ~ the timing taker, then a_t is phased
+                      in over T steps by Eq. (7), as in the timing imagination, before T is chosen again
+            "fixed"   ablation tarl-fixed-t: T = fixed_T (2) always, beta = 1/2
             "random"  ablation tarl-random-t: T uniform on 1..T_max
             "none"    SAC and the safe-RL rows: beta = 1, the actor alone
             "switch"  SAC-Lattice: the actor's second output > 0 picks a_base (beta = 0), else a (Sec. 5.3)
             "planner" Lattice-IDM: beta = 0, the base action alone (no actor)
     actor: anything with act(obs, deterministic) -> action array (SAC, or a policy of baselines.py).
+    timing_cfg: w and T_max (TimingConfig). cap: the timing taker's T capped at this (an experiment's).
     """
 
-    def __init__(self, timing: str, actor=None, timing_taker: SAC | None = None, seed: int = 0):
-        assert timing in ("taker", "fixed", "random", "none", "switch", "planner"), timing
+    TIMINGS = ("taker", "phased", "fixed", "random", "none", "switch", "planner")
+
+    def __init__(self, timing: str, actor=None, timing_taker: SAC | None = None, seed: int = 0,
+                 timing_cfg: TimingConfig = TimingConfig(), fixed_T: int = 2, cap: int | None = None):
+        assert timing in self.TIMINGS, timing
         self.timing, self.actor, self.timing_taker, self.rng = timing, actor, timing_taker, np.random.default_rng(seed)
+        self.timing_cfg, self.fixed_T, self.cap = timing_cfg, fixed_T, cap
+        self.schedule = None  # "phased": [a_t, T, dt] of the decision being executed
+
+    def new_episode(self, seed=None):
+        """An episode begins: no decision is under way; seed: the random timings' own, for a test case."""
+        self.schedule = None
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
 
     def act(self, obs, env: DrivingEnv, deterministic: bool = False, a=None):
         """a: the actor's action, if already drawn (SAC's uniform warm-up)."""
+        omega = self.timing_cfg.omega
         if self.timing == "planner":
             return None, None, 0.0
+        if self.schedule is not None and self.schedule[2] < self.schedule[1]:  # "phased", mid-decision
+            self.schedule[2] += 1
+            a, T, dt = self.schedule
+            return a, T, float(beta(T, dt, omega=omega))  # Eq. (7)
         a = self.actor.act(obs, deterministic) if a is None else a
         if self.timing in ("none", "switch"):
             return a, None, 0.0 if self.timing == "switch" and a[1] > 0.0 else 1.0
-        if self.timing == "taker":
+        if self.timing in ("taker", "phased"):
             T = self.timing_taker.act(timing_input(obs, a, env.cfg), deterministic)
+            T = T if self.cap is None else min(T, self.cap)
         else:
-            T = 2 if self.timing == "fixed" else int(self.rng.integers(1, T_MAX + 1))
-        return a, T, float(beta(T))
+            T = self.fixed_T if self.timing == "fixed" else int(self.rng.integers(1, self.timing_cfg.t_max + 1))
+        if self.timing == "phased":
+            self.schedule = [a, T, 1]
+        return a, T, float(beta(T, omega=omega))  # Eq. (11); for "phased", Eq. (7) at dt = 1, the same
 
 
 def execute(env: DrivingEnv, a, b: float) -> float:
@@ -370,39 +397,6 @@ def execute(env: DrivingEnv, a, b: float) -> float:
     return env.base_action() if b == 0.0 else blend(float(a[0]), env.base_action(), b)
 
 
-def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record: bool = False,
-            deterministic: bool = True) -> dict:
-    """One episode of `driver` from env.reset(options=options), recorded step by step.
-
-    Per step: the actor's a (nan without an actor), T (0 without a timing), beta, a_base (nan where not
-    needed, unless record), the executed a_bar, the ego's speed v [m/s]; with record, also the ego's
-    (x, y, heading), the others' (M, 3) (x, y, heading) and the base planner's planned (K, 2) x, y.
-    Also: the start's fingerprint, the outcome ("arrival", "collision" or "timeout"), the crossing time
-    [s] (None unless arrived) and the number of steps.
-    """
-    obs, _ = env.reset(options=options)
-    if options and "case" in options:  # tarl-random-t: the same timings wherever and whenever the case is played
-        driver.rng = np.random.default_rng(options["case"]["seed"])
-    ep = {key: [] for key in ("a", "T", "beta", "a_base", "a_bar", "v") + ("ego", "others", "plan") * record}
-    start, done = env.fingerprint(), False
-    while not done:
-        a, T, b = driver.act(obs, env, deterministic)
-        if env.gui:
-            env.show(f"T = {T or '-'}, beta = {b:.2f}")
-        for key, value in (("a", np.nan if a is None else a[0]), ("T", T or 0), ("beta", b), ("v", env.v),
-                           ("a_base", env.base_action() if b < 1.0 or record else np.nan), ("a_bar", execute(env, a, b))):
-            ep[key].append(value)
-        if record:
-            ep["ego"].append((*env.xy, env.heading))
-            ep["others"].append(env.others[:, [0, 1, 3]].copy())
-            ep["plan"].append(env.plan_xy())
-        obs, _, terminated, truncated, info = env.step(ep["a_bar"][-1])
-        done = terminated or truncated
-    outcome = "collision" if info["collision"] else "arrival" if info["arrival"] else "timeout"
-    return dict(start=start, outcome=outcome, crossing_time=info["crossing_time"], steps=len(ep["a"]),
-                **{k: v if k in ("others", "plan") else np.array(v) for k, v in ep.items()})
-
-
 # ---- Algorithm 1: the actor, the timing taker, the timing imagination -----------------------------
 
 
@@ -410,7 +404,7 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
 class TrainConfig:
     """Algorithm 1's schedule; all open (PAPER.md)."""
 
-    steps: int = 100_000  # simulator steps of both loops; ~12 min here (README, Speed). Table 2: 500000
+    steps: int = 100_000  # simulator steps of both loops; ~17 min on a quiet 2-core machine. Table 2: 500000
     sac_fraction: float = 0.4  # Alg. 1 line 2: step 1, plain SAC, trains for this share of the steps
     n_timing: int = 20  # N_T: timing decisions per imagination loop (Alg. 1 lines 4-15)
     n_actor: int = 60  # N_a: real steps per actor loop (lines 16-24). Each loop then runs on to the end
@@ -420,12 +414,9 @@ class TrainConfig:
     timing_learning_starts: int = 500  # decisions in D_T before the timing taker learns
     log_every: int = 2000  # [steps] between progress lines
     checkpoint_every: int = 20_000  # [steps] between checkpoints: an interruption loses little
+    timing: TimingConfig = TimingConfig()  # w and T_max
 
 
-# --algo -> the Driver's timing. tarl* run Algorithm 1 with its step 1; sac and sac-lattice its actor loop
-ALGOS = {"tarl": "taker", "tarl-fixed-t": "fixed", "tarl-random-t": "random",
-         "sac": "none", "sac-lattice": "switch", "lattice-idm": "planner"}
-SAFE_RL = ("sac-lag", "sac-pid", "ppo-lag", "cpo")  # Table 3's safe-RL rows, in baselines.py
 LOG_HEADER = ["step", "loop", "episode_return", "success", "collision", "timeout", "crossing_time", "mean_beta"]
 
 
@@ -478,22 +469,25 @@ class Trainer:
     transitions (D_T, D_a). What they share is the stream of traffic situations.
     """
 
-    def __init__(self, env: DrivingEnv, algo: str, tc: TrainConfig = TrainConfig(),
-                 sac_cfg: SACConfig = SACConfig(), seed: int = 0, out: Path | None = None, log=print):
+    def __init__(self, env: DrivingEnv, algo: str, tc: TrainConfig = TrainConfig(), sac_cfg: SACConfig = SACConfig(),
+                 seed: int = 0, out: Path | None = None, log=print, timing: str = "taker", step_one: bool = True):
+        """algo: the row's name (checkpoints, progress lines); timing: its Driver's; step_one: Alg. 1's step 1 first
+        (experiment.ROWS gives both for each row of Table 3)."""
         self.env, self.algo, self.tc, self.sac_cfg, self.seed, self.out = env, algo, tc, sac_cfg, seed, out
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
-        cfg, timing = env.cfg, ALGOS[algo]
+        cfg = env.cfg
         # the actor's bounds are the ego's limits; SAC-Lattice's actor adds its switch in [-1, 1]
         low, high = [cfg.a_min] + [-1.0] * (timing == "switch"), [cfg.a_max] + [1.0] * (timing == "switch")
         self.actor = SAC(OBS_DIM, act_dim=len(low), low=low, high=high, cfg=sac_cfg)
         self.D_a = ReplayBuffer(sac_cfg.buffer_size, OBS_DIM, (len(low),))
         self.timing_taker = self.D_T = None
-        if timing == "taker":
-            self.timing_taker = SAC(OBS_DIM + 1, n_actions=T_MAX, cfg=sac_cfg)
+        if timing in ("taker", "phased"):
+            self.timing_taker = SAC(OBS_DIM + 1, n_actions=tc.timing.t_max, cfg=sac_cfg)
             self.D_T = ReplayBuffer(sac_cfg.buffer_size, OBS_DIM + 1, (), np.int64)
-        self.driver, self.plain = Driver(timing, self.actor, self.timing_taker, seed), Driver("none", self.actor)
-        self.step_one = round(tc.sac_fraction * tc.steps) if algo.startswith("tarl") else 0
+        self.driver = Driver(timing, self.actor, self.timing_taker, seed, tc.timing)
+        self.plain = Driver("none", self.actor)
+        self.step_one = round(tc.sac_fraction * tc.steps) if step_one else 0
         self.sac_actor: SAC | None = None  # the step-1 model, kept when step 1 ends
         self.step, self.updates, self.episode = 0, {"actor": 0, "timing": 0}, dict(ret=0.0, betas=[])
         self.log = TrainLog(out, tc.steps, log)
@@ -537,7 +531,11 @@ class Trainer:
             self.D_a.add(s, a, r, s2, c.gamma, terminated, **self.columns(info))
             self.learn(self.actor, self.D_a.sample, len(self.D_a) >= c.learning_starts, "actor")  # lines 22-23
             done = terminated or truncated
-            self.obs = self.env.reset()[0] if done else s2
+            if done:
+                self.obs = self.env.reset()[0]
+                driver.new_episode()
+            else:
+                self.obs = s2
             self.after_step(r, None if driver.timing == "none" else b, info, done, loop)
             n += 1
 
@@ -552,7 +550,7 @@ class Trainer:
             T = self.timing_taker.act(x)  # line 6
             rewards = []
             for dt in range(1, T + 1):  # lines 7-10
-                b = float(beta(T, dt))
+                b = float(beta(T, dt, omega=self.tc.timing.omega))
                 # Eq. (7): a_bar_{t+dt} = beta(T, dt) a_t + (1 - beta(T, dt)) a_base,t+dt
                 s2, r, terminated, truncated, info = self.env.step(blend(float(a[0]), self.env.base_action(), b))
                 rewards.append(r)
@@ -638,267 +636,7 @@ class Trainer:
             self.rng.bit_generator.state = state["rng"]
             torch.set_rng_state(state["torch_rng"])
 
-    def rows(self) -> list[dict]:
-        """The rows this run adds to Table 3: the trained model, and for TARL its step-1 model."""
-        rows = [dict(algo=self.algo, driver=self.driver, train_steps=self.step)]
-        if self.sac_actor is not None:
-            rows.append(dict(algo="tarl-step1", label=f"TARL step 1 ({self.step_one:,} steps)",
-                             driver=Driver("none", self.sac_actor), train_steps=self.step_one))
-        return rows
-
-
-def load_checkpoint(path: Path, scenario: str, algo: str) -> dict:
-    """A checkpoint of --scenario, --algo as plain tensors and dicts (a stranger's pickle never runs)."""
-    if not Path(path).is_file():
-        raise SystemExit(f"checkpoint not found: {path}")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise SystemExit(f"cannot load checkpoint {path}: {str(e).splitlines()[0][:200]}") from None
-    cfg = state.get("config") if isinstance(state, dict) else None
-    if not cfg or "actor" not in state:
-        raise SystemExit(f"{path} is not a tarl checkpoint: it has no config or no actor")
-    if (cfg["scenario"], cfg["algo"]) != (scenario, algo):
-        raise SystemExit(f"{path} is for --scenario {cfg['scenario']} --algo {cfg['algo']}, "
-                         f"not --scenario {scenario} --algo {algo}")
-    return state
-
-
-def make_trainer(algo: str, env: DrivingEnv, tc: TrainConfig, seed: int = 0, out: Path | None = None, log=print,
-                 state: dict | None = None):
-    """The trainer of a learned row: Algorithm 1 here, the safe-RL rows in baselines.py. state: a checkpoint
-    whose networks' sizes the trainer takes."""
-    if algo in SAFE_RL:
-        import baselines  # built on this module's environment, SAC pieces and evaluation
-        return baselines.make_trainer(algo, env, tc, seed, out, log)
-    return Trainer(env, algo, tc, SACConfig(**state["config"]["sac"]) if state else SACConfig(), seed, out, log)
-
-
-# ---- Evaluation: Sec. 5.3, Table 3, Sec. 5.5 ------------------------------------------------------
-
-
-def test_seed(seed: int, round_: int) -> int:
-    """SUMO and traffic seed of evaluation round `round_`: the same for every model, apart from training's."""
-    return 1_000_000 + 1000 * seed + round_
-
-
-def play_round(env: DrivingEnv, drivers: list[Driver], cases: int, seed: int, round_: int) -> list[list[dict]]:
-    """One round of Table 3 for every driver: the round's test cases (record_cases, once), each played by
-    each driver acting deterministically (the actor's mean, the most likely T). Per driver, the rollout()
-    of each case, in order."""
-    with tempfile.TemporaryDirectory() as folder:
-        recorded = env.record_cases(test_seed(seed, round_), cases, folder)
-        return [[dict(rollout(env, driver, {"case": case}), round=round_, case=c) for c, case in enumerate(recorded)]
-                for driver in drivers]
-
-
-_worker_env: DrivingEnv | None = None  # an evaluation process's own simulation
-
-
-def _play_round_in_worker(job: tuple) -> tuple[int, list[list[dict]]]:
-    global _worker_env
-    cfg, drivers, cases, seed, r = job
-    torch.set_num_threads(1)
-    _worker_env = _worker_env if _worker_env is not None and _worker_env.cfg == cfg else DrivingEnv(cfg)
-    return r, play_round(_worker_env, drivers, cases, seed, r)
-
-
-def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: int = 0, workers: int = 2,
-             env: DrivingEnv | None = None, log=print, keep: Path | None = None) -> list[dict]:
-    """Table 3's protocol for every row (dicts of algo, driver, optional label and train_steps): R rounds
-    of C test cases, round r from test_seed(seed, r), every row on the same cases. The rounds run in
-    `workers` processes, or here on `env` if workers is 0 (sumo-gui, tests): a round gives the same
-    numbers wherever it runs. keep: a folder where each finished round is kept, so that an interrupted
-    evaluation of the same models plays only the rounds it had not finished."""
-    import multiprocessing as mp
-    drivers, t0, key = [row["driver"] for row in rows], time.time(), evaluation_key(cfg, rows, cases, seed)
-    played = {r: kept for r in range(rounds) if (kept := kept_round(keep, r, key)) is not None}
-    todo = [r for r in range(rounds) if r not in played]
-    if played:
-        log(f"  {len(played)} of {rounds} rounds kept in {keep} from an interrupted evaluation")
-    pool = mp.get_context("spawn").Pool(min(workers, len(todo))) if workers and todo else None
-    if pool:
-        done = pool.imap_unordered(_play_round_in_worker, [(cfg, drivers, cases, seed, r) for r in todo])
-    else:
-        done = ((r, play_round(env, drivers, cases, seed, r)) for r in todo)
-    try:
-        for n, (r, result) in enumerate(done, 1):
-            played[r] = [[{k: ep[k].tolist() if k in ("beta", "T") else ep[k] for k in KEPT} for ep in eps]
-                         for eps in result]  # what summarize needs, as JSON keeps it
-            if keep is not None:
-                keep.mkdir(parents=True, exist_ok=True)
-                (keep / f"round{r}.json").write_text(json.dumps(dict(key=key, rows=played[r])))
-            successes = ", ".join(f"{row['algo']} {np.mean([ep['outcome'] == 'arrival' for ep in eps]):.3f}"
-                                  for row, eps in zip(rows, result))
-            log(f"  round {r + 1}/{rounds}: success {successes}  [{n}/{len(todo)} rounds, {time.time() - t0:.0f} s, "
-                f"ETA {(time.time() - t0) / n * (len(todo) - n):.0f} s]")
-    finally:
-        if pool:
-            pool.terminate()  # at once, also when interrupted: the finished rounds are kept
-    return [summarize(row, [played[r][i] for r in range(rounds)], cfg, seed) for i, row in enumerate(rows)]
-
-
-CASE_KEYS = ("round", "case", "start", "outcome", "crossing_time", "steps")  # of each case, in eval.json
-KEPT = (*CASE_KEYS, "beta", "T")  # of an episode: what summarize needs
-
-
-def evaluation_key(cfg: EnvConfig, rows: list[dict], cases: int, seed: int) -> str:
-    """What a kept round was played with: the scenario, seed, cases per round, and each row's algo and weights."""
-    h = hashlib.sha1(repr((asdict(cfg), cases, seed, [row["algo"] for row in rows])).encode())
-    for net in (n for row in rows for n in (row["driver"].actor, row["driver"].timing_taker) if n is not None):
-        for tensor in getattr(net, "policy", net).state_dict().values():
-            h.update(tensor.numpy().tobytes())
-    return h.hexdigest()
-
-
-def kept_round(keep: Path | None, r: int, key: str) -> list[list[dict]] | None:
-    """Round r's episodes per row, if `keep` holds it from the same models and cases."""
-    try:
-        kept = json.loads((keep / f"round{r}.json").read_text()) if keep is not None else {}
-    except (OSError, ValueError):  # no file, or one cut short
-        return None
-    return kept["rows"] if kept.get("key") == key else None
-
-
-def mean_std(x) -> dict:
-    """Mean and standard deviation of the values that are not None; None (null in JSON) if there are none."""
-    x = np.asarray([v for v in x if v is not None], dtype=float)
-    return {"mean": float(np.mean(x)), "std": float(np.std(x))} if len(x) else {"mean": None, "std": None}
-
-
-def summarize(row: dict, rounds: list[list[dict]], cfg: EnvConfig, seed: int) -> dict:
-    """One row of Table 3 from its rounds of played cases, each number a mean +- std over rounds.
-
-    success, collision and timeout rates (they sum to 1). crossing_time: the mean over a round's
-    successes, the paper's measure (a round without any is null, counted in rounds_without_success);
-    crossing_time_all: over the cases that did not collide, a timeout counted at the time limit, so
-    a model that times out on hard cases does not look faster. Sec. 5.5 (rows that blend): mean
-    (1 - beta) over all steps and in the last 3 s and 1 s before collisions; the share of steps at each
-    T. cases: each case's round, case, start fingerprint, outcome, crossing time [s] and steps.
-    """
-    rate = lambda outcome: mean_std([np.mean([ep["outcome"] == outcome for ep in r]) for r in rounds])  # noqa: E731
-    crossing = [[ep["crossing_time"] for ep in r if ep["outcome"] == "arrival"] for r in rounds]
-    crossing_all = [[ep["crossing_time"] or cfg.time_limit for ep in r if ep["outcome"] != "collision"] for r in rounds]
-    out = {"algo": row["algo"], "label": row.get("label", row["algo"]), "train_steps": row.get("train_steps", 0),
-           "seed": seed, "rounds": len(rounds), "cases_per_round": len(rounds[0]), "success_rate": rate("arrival"),
-           "collision_rate": rate("collision"), "timeout_rate": rate("timeout"),
-           "crossing_time": mean_std([np.mean(c) if c else None for c in crossing]),
-           "crossing_time_all": mean_std([np.mean(c) if c else None for c in crossing_all]),
-           "rounds_without_success": sum(not c for c in crossing)}
-    episodes = [ep for r in rounds for ep in r]
-    crashes, k3, k1 = [ep for ep in episodes if ep["outcome"] == "collision"], round(3.0 / cfg.dt), round(1.0 / cfg.dt)
-    if row["driver"].timing in ("taker", "fixed", "random", "switch"):
-        minus = lambda b: float(np.mean(1.0 - np.concatenate(b))) if b else None  # noqa: E731
-        out["beta_minus"] = {"all_steps": minus([ep["beta"] for ep in episodes]),
-                             "3s_before_collision": minus([ep["beta"][-k3:] for ep in crashes]),
-                             "1s_before_collision": minus([ep["beta"][-k1:] for ep in crashes])}
-    if row["driver"].timing in ("taker", "random"):
-        share = lambda T: (np.bincount(np.concatenate(T), minlength=T_MAX + 1)[1:] / sum(map(len, T))).round(4).tolist()  # noqa: E731
-        out["timing_share"] = {"all_steps": share([ep["T"] for ep in episodes]),  # of T = 1, ..., T_max
-                               "3s_before_collision": share([ep["T"][-k3:] for ep in crashes]) if crashes else None}
-    out["cases"] = [{k: ep[k] for k in CASE_KEYS} for ep in episodes]
-    return out
-
-
-def table(results: list[dict]) -> str:
-    """Table 3's layout: rates and crossing times, mean +- std over the rounds."""
-    fmt = lambda m, p=3: f"{m['mean']:.{p}f} +- {m['std']:.{p}f}" if m["mean"] is not None else "-"  # noqa: E731
-    lines = [f"{'model':<26}{'success':>16}{'collision':>16}{'timeout':>16}{'crossing [s]':>16}{'with timeouts':>16}"]
-    lines += [f"{r['label']:<26}{fmt(r['success_rate']):>16}{fmt(r['collision_rate']):>16}{fmt(r['timeout_rate']):>16}"
-              f"{fmt(r['crossing_time'], 2):>16}{fmt(r['crossing_time_all'], 2):>16}" for r in results]
-    return "\n".join(lines)
-
-
-# ---- Command line ------------------------------------------------------------------------------------
-
-
-def parse_args(argv=None):
-    """The command line, all of it checked before any work: a bad value is one line, not a late traceback."""
-    p = argparse.ArgumentParser(description="Train timing-aware RL (or a baseline) in SUMO, then evaluate it as "
-                                "Table 3 does.", formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scenario", choices=sorted(SCENARIOS), default="roundabout")
-    p.add_argument("--algo", choices=(*ALGOS, *SAFE_RL), default="tarl",
-                   help="the row of Table 3 to train and evaluate; Lattice-IDM is evaluated beside it")
-    p.add_argument("--steps", type=int, default=TrainConfig.steps, help="simulator steps of training (Table 2: 500000)")
-    p.add_argument("--seed", type=int, default=0, help="seeds training and the evaluation rounds")
-    p.add_argument("--eval-rounds", type=int, default=10, help="R of Table 3")
-    p.add_argument("--eval-cases", type=int, default=200, help="C of Table 3: test cases per round")
-    p.add_argument("--out", type=Path, help="run directory (default runs/SCENARIO-ALGO-sSEED): train_log.csv, "
-                   "ckpt.pt, policy.pt, eval.json (eval-rounds/ while evaluating)")
-    p.add_argument("--load", type=Path, metavar="CKPT", help="evaluate this ckpt.pt or policy.pt instead of training")
-    p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
-    p.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1),
-                   help="torch threads for training; 1 when another busy process shares the cores")
-    p.add_argument("--workers", type=int, default=2, help="evaluation processes, one simulation each")
-    p.add_argument("--eval-rows", choices=("all", "trained"), default="all", help="all: beside the --algo row, "
-                   "TARL's step-1 model and Lattice-IDM on the same cases; trained: the --algo row alone")
-    p.add_argument("--gui", action="store_true", help="watch in sumo-gui (needs --load unless --algo lattice-idm)")
-    args = p.parse_args(argv)
-    if min(args.eval_rounds, args.eval_cases, args.steps, args.threads, args.workers + 1) < 1:
-        p.error("--steps, --eval-rounds, --eval-cases and --threads must be at least 1, --workers at least 0")
-    if args.load and args.resume:
-        p.error("--load evaluates a checkpoint, --resume continues training: choose one")
-    if args.gui and not args.load and args.algo != "lattice-idm":
-        p.error("--gui watches a trained agent: give it --load CKPT")
-    args.out = args.out or Path("runs") / f"{args.scenario}-{args.algo}-s{args.seed}"
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / ".write-test").write_text("")
-        (args.out / ".write-test").unlink()
-    except OSError as e:
-        raise SystemExit(f"--out {args.out} cannot be written: {e.strerror}") from None
-    args.state = None
-    if args.load or args.resume:
-        args.state = load_checkpoint(args.load or args.out / "ckpt.pt", args.scenario, args.algo)
-    elif (args.out / "ckpt.pt").exists():
-        raise SystemExit(f"{args.out} already holds a run: --resume to continue it, or choose another --out")
-    return args
-
-
-def main(argv=None):
-    args = parse_args(argv)
-    torch.set_num_threads(args.threads)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # a kill saves like Ctrl-C
-    cfg, rows = EnvConfig(scenario=args.scenario), []
-    code = subprocess.run(["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
-                          capture_output=True, text=True).stdout.strip() or None  # the commit this run starts from
-    env = DrivingEnv(cfg, gui=args.gui)
-    try:
-        if args.algo != "lattice-idm":
-            trainer = make_trainer(args.algo, env, replace(TrainConfig(), steps=args.steps), args.seed, args.out,
-                                   state=args.state)
-            if args.state:
-                trainer.load(args.state, resume=args.resume)
-            if not args.load:
-                print(f"training {args.algo} on the {args.scenario} from step {trainer.step} to {args.steps} -> {args.out}")
-                try:
-                    trainer.run()
-                except KeyboardInterrupt:
-                    raise SystemExit(f"saved {args.out / 'ckpt.pt'} and the log; continue with --resume --out "
-                                     f"{args.out}") from None
-            rows = trainer.rows()[:1 if args.eval_rows == "trained" else None]
-        if args.algo == "lattice-idm" or args.eval_rows == "all":
-            rows.append(dict(algo="lattice-idm", label="Lattice-IDM", driver=Driver("planner")))
-        print(f"evaluating on the {args.scenario}: {args.eval_rounds} rounds x {args.eval_cases} test cases, the same "
-              "cases for every model")
-        workers, keep = 0 if args.gui else args.workers, args.out / "eval-rounds"
-        if workers:
-            env.close()  # the workers run their own simulations
-        try:
-            results = evaluate(cfg, rows, args.eval_rounds, args.eval_cases, args.seed, workers, env, keep=keep)
-        except KeyboardInterrupt:
-            trained_here = not args.load and args.algo != "lattice-idm"
-            again = f"continue with --resume --out {args.out}" if trained_here else "run the same command again"
-            raise SystemExit(f"kept the finished rounds in {keep}; {again} to play the others") from None
-    finally:
-        env.close()
-    print(table(results))
-    if "beta_minus" in results[0]:
-        print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
-    (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code, rows=results)))
-    print(f"wrote {args.out / 'eval.json'}")
-    shutil.rmtree(keep, ignore_errors=True)
-
 
 if __name__ == "__main__":
-    main()
+    import experiment  # the command line: train a row of Table 3, then evaluate it
+    experiment.main()

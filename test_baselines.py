@@ -10,6 +10,7 @@ import pytest
 import torch
 from torch.distributions import Normal, kl_divergence
 
+import experiment
 import tarl
 from baselines import (ConstrainedSAC, CostConstraint, GaussianPolicy, Lagrange, OnPolicyTrainer, PIDLagrange,
                        SafeRLConfig, SafeSACTrainer, backtracking_line_search, conjugate_gradient, cost_td_target,
@@ -395,8 +396,8 @@ def env():
 
 def trainer(algo, env, out=None, seed=1):
     if algo in ("sac-lag", "sac-pid"):
-        return SafeSACTrainer(env, algo, SMALL_TRAIN, SMALL_SAC, SMALL_SAFE, seed, out, log=lambda *a: None)
-    return OnPolicyTrainer(env, algo, SMALL_TRAIN, SMALL_SAFE, seed, out, log=lambda *a: None)
+        return SafeSACTrainer(env, algo, SMALL_TRAIN, SMALL_SAC, seed, out, log=lambda *a: None, cfg=SMALL_SAFE)
+    return OnPolicyTrainer(env, algo, SMALL_TRAIN, None, seed, out, log=lambda *a: None, cfg=SMALL_SAFE)
 
 
 @pytest.mark.parametrize("algo", ["sac-lag", "sac-pid", "ppo-lag", "cpo"])
@@ -433,15 +434,15 @@ def test_a_short_run_updates_and_its_checkpoint_acts_the_same(algo, env, tmp_pat
     # ckpt.pt loads into a fresh trainer that acts, and constrains, the same; policy.pt acts the same
     expected = t.driver.actor.act(OBS, True)
     fresh = trainer(algo, env, seed=2)
-    fresh.load(tarl.load_checkpoint(tmp_path / "ckpt.pt", "intersection", algo), resume=True)
+    fresh.load(experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", algo), resume=True)
     np.testing.assert_array_equal(fresh.driver.actor.act(OBS, True), expected)
     assert fresh.step == t.step and fresh.constraint.history == history and fresh.constraint.cost == constraint.cost
     assert fresh.constraint.multiplier is None or vars(fresh.constraint.multiplier) == vars(constraint.multiplier)
     only_policy = trainer(algo, env, seed=3)
-    only_policy.load(tarl.load_checkpoint(tmp_path / "policy.pt", "intersection", algo), resume=False)
+    only_policy.load(experiment.load_checkpoint(tmp_path / "policy.pt", "intersection", algo), resume=False)
     np.testing.assert_array_equal(only_policy.driver.actor.act(OBS, True), expected)
     # the Driver of the row acts with it: the env's action, in the ego's limits
-    row, = t.rows()
+    row, = experiment.trained_rows(t)
     a, T, b = row["driver"].act(OBS[0], env, deterministic=True)
     assert row["algo"] == algo and row["train_steps"] == t.step and T is None and b == 1.0
     assert a.shape == (1,) and env.cfg.a_min <= a[0] <= env.cfg.a_max
@@ -449,8 +450,8 @@ def test_a_short_run_updates_and_its_checkpoint_acts_the_same(algo, env, tmp_pat
 
 @pytest.mark.parametrize("algo, cls", [("sac-lag", SafeSACTrainer), ("sac-pid", SafeSACTrainer),
                                        ("ppo-lag", OnPolicyTrainer), ("cpo", OnPolicyTrainer)])
-def test_tarl_builds_the_safe_rows_here(algo, cls, env):
-    t = tarl.make_trainer(algo, env, SMALL_TRAIN, seed=0, out=None, log=lambda *a: None)
+def test_the_experiment_builds_the_safe_rows_from_its_table(algo, cls, env):
+    t = experiment.make_trainer(algo, env, SMALL_TRAIN, seed=0, out=None, log=lambda *a: None)
     assert type(t) is cls and t.algo == algo and t.step == 0
     multiplier = t.constraint.multiplier
     assert t.constraint.cost_limit == SafeRLConfig().cost_limit  # the same d for the four rows

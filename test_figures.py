@@ -10,6 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import figures  # noqa: E402
+import experiment  # noqa: E402
 import tarl  # noqa: E402
 
 HEADER = "step,loop,episode_return,success,collision,timeout,crossing_time,mean_beta\n"
@@ -28,7 +29,7 @@ def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path)
     trainer = tarl.Trainer(env, "tarl", small, tarl.SACConfig(buffer_size=1000), out=tmp_path, log=lambda *a: None)
     trainer.save()
     assert (tmp_path / "ckpt.pt").is_file() and (tmp_path / "policy.pt").is_file()
-    expected = tarl.play_round(env, [trainer.driver], 3, 0, 0)[0][2]  # the evaluation's case 2 of round 0
+    expected = experiment.play_round(env, [trainer.driver], 3, 0, 0)[0][2]  # the evaluation's case 2 of round 0
     env.close()
 
     out = tmp_path / "fig6.png"
@@ -40,8 +41,8 @@ def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path)
     np.testing.assert_array_equal(ep["a_bar"], expected["a_bar"])
     n = ep["steps"]
     # the record: Eq. (11) and Eq. (12) at every step, a timing in 1..T_max, one frame per decision and the last state
-    assert np.all((ep["T"] >= 1) & (ep["T"] <= tarl.T_MAX))
-    np.testing.assert_allclose(ep["beta"], tarl.beta(ep["T"]))
+    assert np.all((ep["T"] >= 1) & (ep["T"] <= tarl.TimingConfig().t_max))
+    np.testing.assert_allclose(ep["beta"], tarl.beta(ep["T"], omega=tarl.TimingConfig().omega))
     np.testing.assert_allclose(ep["a_bar"], tarl.blend(ep["a"], ep["a_base"], ep["beta"]), atol=1e-12)
     assert len(ep["frames"]) == len(ep["ego"]) == len(ep["plan"]) == n + 1
     # the scene holds every vehicle: among them, the rollout's (those within d_max of the ego)

@@ -9,7 +9,9 @@ import pytest
 
 import planner
 import tarl
-from tarl import EnvConfig, SACConfig, TrainConfig
+from tarl import EnvConfig, SACConfig, TimingConfig, TrainConfig
+
+W = TimingConfig().omega  # w of Eq. (6)
 
 SMALL_SAC = SACConfig(batch_size=32, buffer_size=5_000, learning_starts=50, hidden=32)
 SMALL = TrainConfig(steps=400, sac_fraction=0.3, n_timing=5, n_actor=15, timing_pretrain=0.05,
@@ -20,26 +22,26 @@ SMALL = TrainConfig(steps=400, sac_fraction=0.3, n_timing=5, n_actor=15, timing_
 
 def test_beta_boundary_values():
     T = np.arange(1, 50)
-    np.testing.assert_allclose(tarl.beta(T, T), 1.0)  # dt = T: the actor's action in full
-    np.testing.assert_allclose(tarl.beta(T, 0), 0.0)  # dt = 0: the base action
-    assert tarl.beta(1) == pytest.approx(1.0) and tarl.beta(2) == pytest.approx(0.5)
+    np.testing.assert_allclose(tarl.beta(T, T, omega=W), 1.0)  # dt = T: the actor's action in full
+    np.testing.assert_allclose(tarl.beta(T, 0, omega=W), 0.0)  # dt = 0: the base action
+    assert tarl.beta(1, omega=W) == pytest.approx(1.0) and tarl.beta(2, omega=W) == pytest.approx(0.5)
     for omega in (1.0, 3.0, 10.0):  # whatever w is
         assert tarl.beta(2, omega=omega) == pytest.approx(0.5)
-    b = tarl.beta(T)
+    b = tarl.beta(T, omega=W)
     assert np.all(np.diff(b) < 0)  # strictly decreasing in T
-    assert 0.05 < tarl.beta(3) < 0.5 and tarl.beta(4) < 0.05  # intermediate at 3, near 0 from 4 (Sec. 4)
-    assert tarl.beta(10_000) < 1e-3  # tends to 0
+    assert 0.05 < tarl.beta(3, omega=W) < 0.5 and tarl.beta(4, omega=W) < 0.05  # intermediate at 3, near 0 from 4 (Sec. 4)
+    assert tarl.beta(10_000, omega=W) < 1e-3  # tends to 0
 
 
 def test_beta_within_a_timing_rises_to_one():
-    b = tarl.beta(5, np.arange(1, 6))
+    b = tarl.beta(5, np.arange(1, 6), omega=W)
     assert np.all(np.diff(b) > 0) and b[-1] == pytest.approx(1.0)
 
 
 def test_blend_at_beta_one_and_zero():
     assert tarl.blend(1.5, -2.0, 1.0) == 1.5  # Eq. (12), beta = 1: the actor's action
     assert tarl.blend(1.5, -2.0, 0.0) == -2.0  # beta = 0: the base action
-    assert tarl.blend(1.0, -1.0, tarl.beta(2)) == pytest.approx(0.0)
+    assert tarl.blend(1.0, -1.0, tarl.beta(2, omega=W)) == pytest.approx(0.0)
 
 
 def test_discounted_sum_is_eq_8_by_hand():
@@ -109,8 +111,8 @@ def test_the_real_loop_executes_eq_12_and_stores_the_actors_action_with_the_blen
     del trainer.driver.act
     assert len(proposals) == len(trainer.env.steps) == len(trainer.D_a) - start >= SMALL.n_actor
     for i, ((a, T, b), (a_bar, a_base, r, _)) in enumerate(zip(proposals, trainer.env.steps)):
-        assert 1 <= T <= tarl.T_MAX and b == pytest.approx(float(tarl.beta(T)))
-        assert a_bar == pytest.approx(tarl.blend(a[0], a_base, tarl.beta(T)), abs=1e-12)  # Eq. (12)
+        assert 1 <= T <= SMALL.timing.t_max and b == pytest.approx(float(tarl.beta(T, omega=W)))
+        assert a_bar == pytest.approx(tarl.blend(a[0], a_base, tarl.beta(T, omega=W)), abs=1e-12)  # Eq. (12)
         # Alg. 1 line 21: a_t as the actor proposed it, with the reward of the executed a_bar_t
         assert trainer.D_a.data["act"][start + i, 0] == pytest.approx(a[0])
         assert trainer.D_a.data["rew"][start + i] == pytest.approx(r)
@@ -140,7 +142,7 @@ def test_the_timing_buffer_holds_r_T_and_gamma_to_the_T(trainer):
 
 
 def test_torch_threads_wait_passively_unless_the_user_says_otherwise():
-    """Spinning OpenMP threads beside another busy process made training ~40x slower (README, Speed)."""
+    """Spinning OpenMP threads beside another busy process made training ~40x slower (RESULTS.md, History)."""
     show = "import tarl, os; print(os.environ['OMP_WAIT_POLICY'])"
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     here = os.path.dirname(os.path.abspath(__file__))
@@ -148,3 +150,92 @@ def test_torch_threads_wait_passively_unless_the_user_says_otherwise():
                           text=True).stdout.strip() == "PASSIVE"
     assert subprocess.run([sys.executable, "-c", show], env=env | {"OMP_WAIT_POLICY": "ACTIVE"}, cwd=here,
                           capture_output=True, text=True).stdout.strip() == "ACTIVE"
+
+
+# ---- w and T_max: one home, read when acting (also in an evaluation worker) ---------------------
+
+class Fixed:
+    """An actor that always proposes the same acceleration."""
+
+    def __init__(self, a):
+        self.a = np.array([a])
+
+    def act(self, obs, deterministic=False):
+        return self.a
+
+
+def test_w_changed_in_its_home_changes_the_executed_blend_here_and_in_an_evaluation_worker():
+    import experiment
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    try:
+        obs, _ = env.reset(seed=1)
+        for omega in (2.0, 20.0):
+            driver = tarl.Driver("fixed", Fixed(1.0), fixed_T=3, timing_cfg=TimingConfig(omega=omega))
+            assert driver.act(obs, env)[2] == pytest.approx(float(tarl.beta(3, omega=omega)))
+        rows = lambda omega: [dict(algo="tarl-fixed-t", driver=tarl.Driver(  # noqa: E731
+            "fixed", Fixed(1.0), fixed_T=3, timing_cfg=TimingConfig(omega=omega)))]
+        here = experiment.evaluate(env.cfg, rows(W), rounds=1, cases=2, seed=0, workers=0, env=env, log=lambda *a: None)
+    finally:
+        env.close()
+    for omega in (W, 0.5):  # what an evaluation worker executes: beta(3) of this w on every step
+        there = experiment.evaluate(env.cfg, rows(omega), rounds=1, cases=2, seed=0, workers=1, log=lambda *a: None)
+        assert there[0]["beta_minus"]["all_steps"] == pytest.approx(1.0 - float(tarl.beta(3, omega=omega)))
+    assert 1.0 - float(tarl.beta(3, omega=0.5)) < 0.75 < 1.0 - float(tarl.beta(3, omega=W))
+    there = experiment.evaluate(env.cfg, rows(W), rounds=1, cases=2, seed=0, workers=1, log=lambda *a: None)
+    assert there[0]["cases"] == here[0]["cases"]  # a round is the same wherever it runs
+
+
+def test_t_max_changed_in_its_home_sizes_the_timing_taker_and_bounds_random_timings():
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    trainer = tarl.Trainer(env, "tarl", TrainConfig(steps=400, timing=TimingConfig(t_max=4)), SMALL_SAC, log=lambda *a: None)
+    assert trainer.timing_taker.n_actions == 4 and trainer.driver.timing_cfg.t_max == 4
+    driver = tarl.Driver("random", Fixed(0.0), timing_cfg=TimingConfig(t_max=3))
+    obs, _ = env.reset(seed=2)
+    assert {driver.act(obs, env)[1] for _ in range(200)} == {1, 2, 3}
+    env.close()
+
+
+# ---- tarl-consistent (beyond the paper): the real loop executes Eq. (7) as the imagination does ------
+
+def test_the_phased_driver_holds_a_t_over_T_steps_by_eq_7_then_decides_again():
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    trainer = tarl.Trainer(env, "tarl-consistent", SMALL, SMALL_SAC, seed=4, log=lambda *a: None, timing="phased")
+    obs, _ = env.reset(seed=4)
+    decided = record_calls(trainer.timing_taker, "act")
+    proposed = record_calls(trainer.actor, "act")
+    steps = [trainer.driver.act(obs, env) for _ in range(40)]
+    env.close()
+    assert len(proposed) == len(decided)  # the actor is asked only when a decision is made
+    i = 0
+    for a_t, T in zip(proposed, decided):  # each decision: a_t held, beta(T, dt) for dt = 1..T, as imagined
+        for dt in range(1, min(T, len(steps) - i) + 1):
+            a, T_i, b = steps[i]
+            assert a[0] == a_t[0] and T_i == T and b == pytest.approx(float(tarl.beta(T, dt, omega=W)))
+            i += 1
+    assert i == len(steps) and len(decided) < len(steps)  # fewer decisions than steps: T > 1 was held
+
+
+def test_the_consistent_variant_executes_in_the_real_loop_what_its_imagination_executes():
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    trainer = tarl.Trainer(Recorder(env), "tarl-consistent", SMALL, SMALL_SAC, seed=5, log=lambda *a: None,
+                           timing="phased")
+    trainer.obs, _ = trainer.env.reset(seed=5)
+    decided, proposals = record_calls(trainer.timing_taker, "act"), record_calls(trainer.driver, "act")
+    start_a, start_T = len(trainer.D_a), len(trainer.D_T)
+    trainer.actor_loop(trainer.driver, "real")
+    assert len(trainer.D_T) == start_T  # Alg. 1: only the imagination fills D_T
+    steps, i = trainer.env.steps, 0
+    for T in decided:  # each decision plays a_t over T steps by Eq. (7), as one imagination decision does
+        a = proposals[i][0]
+        for dt in range(1, T + 1):
+            a_bar, a_base, r, done = steps[i]
+            assert proposals[i][0][0] == a[0] and proposals[i][1] == T
+            assert a_bar == pytest.approx(tarl.blend(a[0], a_base, tarl.beta(T, dt, omega=W)), abs=1e-12)  # Eq. (7)
+            assert trainer.D_a.data["act"][start_a + i, 0] == pytest.approx(a[0])  # the a_t being phased in
+            i += 1
+            if done or i == len(steps):
+                break
+        if i == len(steps):
+            break
+    assert i == len(steps) >= SMALL.n_actor
+    env.close()

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+import experiment
 import tarl
 from tarl import EnvConfig, SACConfig, TrainConfig
 
@@ -32,7 +33,7 @@ def test_short_tarl_run_updates_both_agents_and_writes_a_checkpoint_that_loads(e
     assert len(trainer.D_T) > SMALL.n_timing and trainer.sac_actor is not None
     assert trainer.step_one >= SMALL.sac_fraction * SMALL.steps
     # the checkpoint loads with weights_only=True into a fresh trainer and acts the same
-    state = tarl.load_checkpoint(tmp_path / "ckpt.pt", "intersection", "tarl")
+    state = experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", "tarl")
     assert state["step"] == trainer.step
     fresh = tarl.Trainer(env, "tarl", SMALL, SMALL_SAC, seed=2, **QUIET)
     fresh.load(state, resume=True)
@@ -42,7 +43,7 @@ def test_short_tarl_run_updates_both_agents_and_writes_a_checkpoint_that_loads(e
     np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
     assert fresh.step == trainer.step and len(fresh.D_a) == len(trainer.D_a)
     # policy.pt: the policies alone, small, enough to act
-    policy = tarl.load_checkpoint(tmp_path / "policy.pt", "intersection", "tarl")
+    policy = experiment.load_checkpoint(tmp_path / "policy.pt", "intersection", "tarl")
     actor_only = tarl.Trainer(env, "tarl", SMALL, SMALL_SAC, seed=3, **QUIET)
     actor_only.load(policy, resume=False)
     np.testing.assert_array_equal(actor_only.actor.act(obs, True), trainer.actor.act(obs, True))
@@ -58,19 +59,19 @@ def test_a_checkpoint_for_another_model_is_refused(env, tmp_path):
     trainer = tarl.Trainer(env, "sac", TrainConfig(steps=150, n_actor=15), SMALL_SAC, seed=1, out=tmp_path, **QUIET)
     trainer.run()
     with pytest.raises(SystemExit, match="--algo sac"):
-        tarl.load_checkpoint(tmp_path / "ckpt.pt", "intersection", "tarl")
+        experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", "tarl")
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(SystemExit, match="cannot load checkpoint"):
-        tarl.load_checkpoint(tmp_path / "bad.pt", "intersection", "sac")
+        experiment.load_checkpoint(tmp_path / "bad.pt", "intersection", "sac")
     with pytest.raises(SystemExit, match="not found"):
-        tarl.load_checkpoint(tmp_path / "missing.pt", "intersection", "sac")
+        experiment.load_checkpoint(tmp_path / "missing.pt", "intersection", "sac")
 
 
 def test_same_seed_gives_the_same_evaluation(env):
     def run():
         trainer = tarl.Trainer(env, "tarl", SMALL, SMALL_SAC, seed=5, **QUIET)
         trainer.run()
-        return tarl.evaluate(env.cfg, trainer.rows(), rounds=2, cases=2, seed=5, workers=0, env=env, **QUIET)
+        return experiment.evaluate(env.cfg, experiment.trained_rows(trainer), rounds=2, cases=2, seed=5, workers=0, env=env, **QUIET)
     first, second = run(), run()
     assert first == second
     tarl_row = first[0]
@@ -87,7 +88,7 @@ def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env
         return [dict(algo="sac", driver=tarl.Driver("none", actor)), dict(algo="lattice-idm", driver=tarl.Driver("planner"))]
 
     def evaluate(rows, **kw):
-        return tarl.evaluate(env.cfg, rows, rounds=3, cases=2, seed=0, workers=0, env=env, **kw)
+        return experiment.evaluate(env.cfg, rows, rounds=3, cases=2, seed=0, workers=0, env=env, **kw)
 
     whole = evaluate(rows(0), **QUIET)
 
@@ -96,8 +97,8 @@ def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env
             raise KeyboardInterrupt
     with pytest.raises(KeyboardInterrupt):
         evaluate(rows(0), log=stop_after_two_rounds, keep=tmp_path)
-    played, play_round = [], tarl.play_round
-    monkeypatch.setattr(tarl, "play_round", lambda *a: played.append(a[-1]) or play_round(*a))
+    played, play_round = [], experiment.play_round
+    monkeypatch.setattr(experiment, "play_round", lambda *a: played.append(a[-1]) or play_round(*a))
     assert evaluate(rows(0), keep=tmp_path, **QUIET) == whole  # the same numbers, down to every case
     assert len(played) == 1  # one of the three rounds left
     played.clear()
@@ -109,22 +110,22 @@ def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env
                                   ["--gui", "--algo", "tarl"]])
 def test_bad_command_lines_get_argparse_errors(argv, tmp_path):
     with pytest.raises(SystemExit) as e:
-        tarl.parse_args([*argv, "--out", str(tmp_path / "run")])
+        experiment.parse_args([*argv, "--out", str(tmp_path / "run")])
     assert e.value.code == 2
 
 
 def test_bad_outputs_and_checkpoints_fail_before_any_work(tmp_path, capsys):
     (tmp_path / "a-file").write_text("")
     with pytest.raises(SystemExit, match="cannot be written"):
-        tarl.parse_args(["--out", str(tmp_path / "a-file")])
+        experiment.parse_args(["--out", str(tmp_path / "a-file")])
     with pytest.raises(SystemExit, match="not found"):
-        tarl.parse_args(["--out", str(tmp_path / "run"), "--load", str(tmp_path / "missing.pt")])
+        experiment.parse_args(["--out", str(tmp_path / "run"), "--load", str(tmp_path / "missing.pt")])
     with pytest.raises(SystemExit, match="not found"):
-        tarl.parse_args(["--out", str(tmp_path / "fresh"), "--resume"])
+        experiment.parse_args(["--out", str(tmp_path / "fresh"), "--resume"])
 
 
 def test_the_command_line_evaluates_the_planner_and_writes_every_case(tmp_path, capsys):
-    tarl.main(["--scenario", "intersection", "--algo", "lattice-idm", "--eval-rounds", "1", "--eval-cases", "3",
+    experiment.main(["--scenario", "intersection", "--algo", "lattice-idm", "--eval-rounds", "1", "--eval-cases", "3",
                "--out", str(tmp_path), "--workers", "0"])
     result = json.loads((tmp_path / "eval.json").read_text())
     row = result["rows"][0]
@@ -137,20 +138,20 @@ def test_the_command_line_keeps_finished_rounds_when_interrupted_and_plays_the_r
                                                                                                monkeypatch):
     argv = ["--scenario", "intersection", "--algo", "lattice-idm", "--eval-rounds", "2", "--eval-cases", "2",
             "--out", str(tmp_path)]
-    play_round = tarl.play_round
+    play_round = experiment.play_round
 
     def interrupt_round_1(*a):
         if a[-1] == 1:
             raise KeyboardInterrupt
         return play_round(*a)
-    monkeypatch.setattr(tarl, "play_round", interrupt_round_1)
+    monkeypatch.setattr(experiment, "play_round", interrupt_round_1)
     with pytest.raises(SystemExit, match="kept the finished rounds in .*eval-rounds; run the same command again"):
-        tarl.main([*argv, "--workers", "0"])
+        experiment.main([*argv, "--workers", "0"])
     assert [f.name for f in (tmp_path / "eval-rounds").iterdir()] == ["round0.json"]
-    monkeypatch.setattr(tarl, "play_round", play_round)
-    tarl.main([*argv, "--workers", "1"])  # round 1 in a worker process
+    monkeypatch.setattr(experiment, "play_round", play_round)
+    experiment.main([*argv, "--workers", "1"])  # round 1 in a worker process
     row = json.loads((tmp_path / "eval.json").read_text())["rows"][0]
-    whole = tarl.evaluate(env.cfg, [dict(algo="lattice-idm", label="Lattice-IDM", driver=tarl.Driver("planner"))],
+    whole = experiment.evaluate(env.cfg, [dict(algo="lattice-idm", label="Lattice-IDM", driver=tarl.Driver("planner"))],
                           rounds=2, cases=2, seed=0, workers=0, env=env, **QUIET)[0]
     assert row == json.loads(json.dumps(whole))
     assert not (tmp_path / "eval-rounds").exists()

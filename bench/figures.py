@@ -14,7 +14,7 @@ training  Fig. 5: one column per scenario, the episode return and the collision 
           episodes are averaged over bins of --bin steps (an episode counts in the bin where it ended);
           the line is the mean over seeds, the band their min-max. The dotted line: the end of TARL's
           step 1 (plain SAC), the step of its last "step1" episode.
-case      Fig. 6: test case --case of evaluation round --round, replayed exactly as tarl.play_round plays
+case      Fig. 6: test case --case of evaluation round --round, replayed exactly as experiment.play_round plays
           it. Top: five snapshots at
           equally spaced moments from the departure to the moment the ego leaves the conflict area; the
           conflict area is zone 1 of the observation's h2 (obs[3:6]: entry road, junction, exit road),
@@ -60,6 +60,7 @@ from matplotlib.patches import Patch  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import baselines  # noqa: E402
+import experiment  # noqa: E402
 import tarl  # noqa: E402
 import world  # noqa: E402
 from table3 import ABLATIONS, NAMES, ROWS, SCENARIOS  # noqa: E402
@@ -68,7 +69,8 @@ plt.rcParams.update({"font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11
                      "xtick.labelsize": 9, "ytick.labelsize": 9})
 ORDER = tuple(a for a in ROWS + ABLATIONS if a != "lattice-idm")  # the learned rows of Table 3, in its order
 COLORS = {"tarl": "#d62728", "sac": "#1f77b4", "sac-lattice": "#2ca02c", "sac-lag": "#9467bd", "sac-pid": "#8c564b",
-          "ppo-lag": "#e377c2", "cpo": "#7f7f7f", "tarl-fixed-t": "#ff7f0e", "tarl-random-t": "#17becf"}
+          "ppo-lag": "#e377c2", "cpo": "#7f7f7f", "tarl-fixed-t": "#ff7f0e", "tarl-random-t": "#17becf",
+          "tarl-consistent": "#bcbd22"}
 # Sec. 5.5 of the paper: mean 1 - beta over all steps, within 3 s and 1 s before a collision
 PAPER_BETA_MINUS = {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
 RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)(?:-(?P<budget>\d+k))?$")  # bench/table3.py
@@ -235,6 +237,9 @@ class Watch:
     def __init__(self, driver: tarl.Driver):
         self.driver, self.frames = driver, []
 
+    def new_episode(self, seed=None):
+        self.driver.new_episode(seed)
+
     def act(self, obs, env, deterministic=False, a=None):
         self.frames.append(scene(env, obs))
         return self.driver.act(obs, env, deterministic, a)
@@ -291,9 +296,10 @@ def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
         return tarl.Driver("planner"), name("lattice-idm")
     if args.load is None:
         fail(f"--algo {args.algo} needs --load CKPT (a ckpt.pt or policy.pt of tarl.py)")
-    state = tarl.load_checkpoint(args.load, args.scenario, args.algo)
+    state = experiment.load_checkpoint(args.load, args.scenario, args.algo)
     try:
-        trainer = tarl.make_trainer(args.algo, env, tarl.TrainConfig(), args.seed, None, lambda *a: None, state=state)
+        tc = tarl.TrainConfig(timing=experiment.checkpoint_timing(state))
+        trainer = experiment.make_trainer(args.algo, env, tc, args.seed, None, lambda *a: None, state=state)
         trainer.load(state, resume=False)
     except (RuntimeError, KeyError, AttributeError) as e:
         fail(f"cannot load {args.load} as --algo {args.algo}: {str(e).splitlines()[0][:200]}")
@@ -301,16 +307,16 @@ def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
 
 
 def replay(env: tarl.DrivingEnv, driver: tarl.Driver, seed: int, round_: int, case: int) -> dict:
-    """Test case `case` of round `round_` as tarl.play_round plays it (a case is the same episode whether
+    """Test case `case` of round `round_` as experiment.play_round plays it (a case is the same episode whether
     played alone or within its round). Returns the rollout's record, the scene at each decision (Watch)
     and, as one more frame, the state the episode ended in."""
-    progress(f"recording test cases 0-{case} of round {round_} (seed {tarl.test_seed(seed, round_)}): "
+    progress(f"recording test cases 0-{case} of round {round_} (seed {experiment.test_seed(seed, round_)}): "
              f"{env.cfg.warmup + (case + 1) * env.cfg.case_gap:,.0f} s of traffic")
     t0 = time.time()
     with tempfile.TemporaryDirectory() as folder:
-        cases = env.record_cases(tarl.test_seed(seed, round_), case + 1, folder)
+        cases = env.record_cases(experiment.test_seed(seed, round_), case + 1, folder)
         watch = Watch(driver)
-        ep = tarl.rollout(env, watch, {"case": cases[case]}, record=True)
+        ep = experiment.rollout(env, watch, {"case": cases[case]}, record=True)
         # the episode's last state: env keeps the ego's and the others' from its last step, SUMO the rest
         ep["frames"] = watch.frames + [scene(env, env.obs)]
         ep["ego"] = np.vstack([ep["ego"], [*env.xy, env.heading]])
@@ -433,10 +439,10 @@ def draw_case(ep: dict, cfg: tarl.EnvConfig, title: str, out: Path, window: floa
     ax_a.legend(handles=handles, loc="upper left", ncol=len(handles), fontsize=9, framealpha=0.9)
     if (ep["T"] > 0).any():
         ax_t.step(t, ep["T"], where="post", color=TIMING, lw=1.6)
-        ax_t.set_ylim(0.5, tarl.T_MAX + 0.5)
+        ax_t.set_ylim(0.5, tarl.TimingConfig().t_max + 0.5)
         ax_t.set_yticks([1, 2, 3, 4, 6, 8, 10])
         ax_t.set_ylabel("timing T [steps]")
-        ax_t.text(1.0, 1.02, r"$\beta(1) = 1$, $\beta(2) = 0.5$, $\beta(3) = %.2f$, $\beta(T \geq 4) < 0.05$" % tarl.beta(3),
+        ax_t.text(1.0, 1.02, r"$\beta(1) = 1$, $\beta(2) = 0.5$, $\beta(3) = %.2f$, $\beta(T \geq 4) < 0.05$" % tarl.beta(3, omega=tarl.TimingConfig().omega),
                   transform=ax_t.transAxes, ha="right", va="bottom", fontsize=9, color="0.3")
     else:
         ax_t.step(t, ep["beta"], where="post", color=TIMING, lw=1.6)
@@ -595,7 +601,7 @@ def beta(args):
     timing = [k for k in keys if any("timing_share" in row for _, row in found[k])]
     if timing:
         lines += ["", "## The timing taker's T: the share of steps at each T (beta(1) = 1, beta(2) = 0.5, "
-                  f"beta(3) = {tarl.beta(3):.3f}, beta(T >= 4) < 0.05)", "",
+                  f"beta(3) = {tarl.beta(3, omega=tarl.TimingConfig().omega):.3f}, beta(T >= 4) < 0.05)", "",
                   "| scenario | model | seed | T = 1 | T = 2-3 | T >= 4 | T = 1, last 3 s before a collision | "
                   "T = 2-3, last 3 s | T >= 4, last 3 s |", "|---|---|---|---|---|---|---|---|---|"]
         for sc, algo in timing:
@@ -703,7 +709,7 @@ def parse_args(argv=None):
                            ("failure", "Fig. 7: the first test case of an eval.json that ended in a collision")):
         c = sub.add_parser(command, help=help_)
         c.add_argument("--scenario", choices=SCENARIOS, default="roundabout")
-        c.add_argument("--algo", choices=(*tarl.ALGOS, *tarl.SAFE_RL), default="tarl")
+        c.add_argument("--algo", choices=tuple(experiment.ROWS), default="tarl")
         c.add_argument("--load", type=Path, metavar="CKPT", help="ckpt.pt or policy.pt (not for --algo lattice-idm)")
         c.add_argument("--out", type=Path, help=f"PNG (default results/fig{6 if command == 'case' else 7}_SCENARIO.png)")
         c.add_argument("--window", type=float, default=120.0, help="side of the snapshots [m], centred on the "

@@ -54,7 +54,7 @@ def measure(scenario: str, seconds: float, seed: int) -> dict:
     env.close()
     return {"scenario": scenario, "seed": seed, "seconds": seconds, "departures_asked": asked,
             "inserted": departed, "dropped": asked - departed - pending, "arrived_per_s": round(arrived / seconds, 3),
-            "demand_per_s": round(1.0 / env._spawn_gap, 3),
+            "demand_per_s": round(1.0 / env.spawn_gap, 3),
             "wait_mean_s": round(float(np.mean(done_waits)), 2), "wait_max_s": round(float(np.max(done_waits)), 1),
             "teleports": teleports, "collisions": collisions, "most_vehicles": most,
             "longest_standing_at_spawn_s": round(longest_at_spawn, 1)}
