@@ -3,12 +3,12 @@
     python bench/table3.py                    # run or resume the grid, 2 cells side by side
     python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
     python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
-    python bench/table3.py --collect-only --readme   # and the README's result tables
+    python bench/table3.py --collect-only --readme   # and the tables in README.md and RESULTS.md
 
 A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
 checkpoints), evaluated on the fixed test cases of seed K; TARL's cell is the default command, which
 also evaluates Lattice-IDM and TARL's step-1 model on the same cases. When it finishes, its eval.json,
-train_log.csv, constraint_log.csv (safe-RL rows) and, for seed 0, policy.pt go to results/runs/S-A-sK and, with
+train_log.csv, constraint_log.csv (safe-RL rows) and policy.pt go to results/runs/S-A-sK and, with
 --commit, committed: an interruption loses at most the cells in progress, which resume from their
 checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
 The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
@@ -29,16 +29,17 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+import experiment  # noqa: E402
 import tarl  # noqa: E402
 SCENARIOS = ("intersection", "roundabout")
 ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
 # TARL's cell is the default command: it evaluates Lattice-IDM (and TARL's step-1 model) on the same
 # cases, so Lattice-IDM has no cell of its own
 RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
-ABLATIONS = ("tarl-fixed-t", "tarl-random-t")  # "What the timing adds" (README)
-NAMES = {"tarl": "TARL", "tarl-step1": "TARL step 1", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
-         "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO",
-         "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": "TARL, T random"}
+# Beyond Table 3 (RESULTS.md, "What the timing adds"): TARL's ablations without a timing taker, and a variant
+# whose T means the same in both loops (PAPER.md)
+ABLATIONS = ("tarl-fixed-t", "tarl-random-t", "tarl-consistent")
+NAMES = {algo: row.label for algo, row in experiment.ROWS.items()} | {"tarl-step1": "TARL step 1"}
 # Table 3 of the paper: success rate and crossing time [s], mean +- std over 10 rounds of 200 cases
 PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.739, 0.039, 10.303, 0.515),
                           "sac-lag": (0.828, 0.026, 9.230, 0.134), "sac-pid": (0.810, 0.028, 9.208, 0.133),
@@ -78,7 +79,7 @@ def publish(scenario, algo, seed, args):
     name = cell_name(scenario, algo, seed, args.steps)
     src, dst = args.work / name, args.results / "runs" / name
     dst.mkdir(parents=True, exist_ok=True)
-    for file in ("train_log.csv", "constraint_log.csv") + ("policy.pt",) * (seed == 0):
+    for file in ("train_log.csv", "constraint_log.csv", "policy.pt"):  # ~1 MB each policy: every seed's
         if (src / file).exists():
             shutil.copy(src / file, dst / file)
     shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
@@ -181,7 +182,7 @@ def same_cases(found: dict) -> list[str]:
     return lines
 
 
-def case_by_case(found: dict, against=("tarl-fixed-t", "tarl-random-t", "sac", "lattice-idm")) -> list[str]:
+def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> list[str]:
     """TARL against each of `against` on the same test cases: where exactly one of the two arrives, how the other
     failed (the README's "What the timing adds")."""
     lines = ["| budget | scenario | seed | TARL against | only TARL arrives: the other collides / times out | "
@@ -199,7 +200,12 @@ def case_by_case(found: dict, against=("tarl-fixed-t", "tarl-random-t", "sac", "
 
 
 TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL's cell
-README_ROWS = {"results": TABLE_ROWS, "timing": ("tarl", *ABLATIONS, "sac", "lattice-idm")}
+# The blocks that --readme writes, by NAME, wherever a `<!-- table3.py NAME -->` marker stands in README.md or
+# RESULTS.md: (rows, kind). "compact": README.md's headline, mean +- std over seeds beside Table 3's success, the
+# ablations in italics; "paper": RESULTS.md's Table 3, with the mean per-round std and Table 3's values; "full": the
+# same without Table 3's values (RESULTS.md, "What the timing adds").
+README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS), "compact"), "results": (TABLE_ROWS, "paper"),
+               "timing": (("tarl", *ABLATIONS, "sac", "lattice-idm"), "full")}
 RATES = ("success_rate", "collision_rate", "timeout_rate")  # of each row of eval.json, in the tables' column order
 
 
@@ -249,16 +255,48 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
 
 
 def write_readme(found: dict, readme: Path):
-    """Replace each block between `<!-- table3.py NAME -->` and `<!-- /table3.py -->` in the README."""
-    text = readme.read_text()
-    for name, algos in README_ROWS.items():
-        begin, end = f"<!-- table3.py {name} -->", "<!-- /table3.py -->"
-        head, found_begin, rest = text.partition(begin)
-        if not found_begin:
+    """Replace each block between `<!-- table3.py NAME -->` and `<!-- /table3.py -->` (NAME in README_ROWS) in
+    `readme` and in the RESULTS.md beside it, if there is one: the headline tables live in README.md, the full ones
+    and the evidence in RESULTS.md."""
+    def compact(algos) -> list[str]:
+        """Per scenario at the default budget: success, collision, timeout and crossing time as mean +- std over
+        seeds, and Table 3's success; the best success of Table 3's rows in bold."""
+        def text(stats, digits):
+            return "-" if stats is None else f"{stats[0]:.{digits}f}" + f" +- {stats[1]:.{digits}f}" * (stats[3] > 1)
+        lines = []
+        for scenario in SCENARIOS:
+            table = {algo: found.get(STEPS, {}).get((scenario, algo)) for algo in algos}
+            table = {algo: {k: over_seeds(rows, k) for k in (*RATES, "crossing_time")} | {"seeds": len(rows)}
+                     for algo, rows in table.items() if rows}
+            seeds = {stats["seeds"] for stats in table.values()}
+            best = max(((stats["success_rate"] or (0,))[0] for algo, stats in table.items() if algo in TABLE_ROWS),
+                       default=None)
+            lines += [f"**{scenario.capitalize()}**" + (f" ({min(seeds)} seeds)" if len(seeds) == 1 else ""), "",
+                      "| model | success | collision | timeout | crossing [s] | paper success |",
+                      "|---|---|---|---|---|---|"]
+            for algo, stats in table.items():
+                name = NAMES[algo] + (f" ({stats['seeds']} seeds)" if len(seeds) > 1 else "")
+                name = f"*{name}*" if algo in ABLATIONS else name
+                bold = "**" * (algo in TABLE_ROWS and (stats["success_rate"] or (None,))[0] == best)
+                ref = PAPER[scenario].get(algo)
+                lines.append(f"| {name} | {bold}{text(stats['success_rate'], 3)}{bold} | "
+                             f"{text(stats['collision_rate'], 3)} | {text(stats['timeout_rate'], 3)} | "
+                             f"{text(stats['crossing_time'], 1)} | {f'{ref[0]:.3f}' if ref else '-'} |")
+            lines.append("")
+        return lines[:-1]
+
+    begin, end = "<!-- table3.py {} -->", "<!-- /table3.py -->"
+    for path in (readme, readme.with_name("RESULTS.md")):
+        if not path.exists():
             continue
-        text = head + begin + "\n" + "\n".join(readme_block(found, algos, name == "results")) + "\n" + end \
-            + rest.partition(end)[2]
-    readme.write_text(text)
+        text = path.read_text()
+        for name, (algos, kind) in README_ROWS.items():
+            head, found_begin, rest = text.partition(begin.format(name))
+            if not found_begin:
+                continue
+            block = compact(algos) if kind == "compact" else readme_block(found, algos, kind == "paper")
+            text = head + begin.format(name) + "\n" + "\n".join(block) + "\n" + end + rest.partition(end)[2]
+        path.write_text(text)
 
 
 def collect(args):
@@ -315,8 +353,8 @@ def main():
     p.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell (2 threads "
                    "each unless --threads) and exit")
     p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md")
-    p.add_argument("--readme", action="store_true", help="also rewrite the README's result tables (between their "
-                   "<!-- table3.py --> markers)")
+    p.add_argument("--readme", action="store_true", help="also rewrite the result tables of README.md (the headline) "
+                   "and RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
     args = p.parse_args()
     if args.jobs < 1 or (args.threads is not None and args.threads < 1):
         p.error("--jobs and --threads must be at least 1")
