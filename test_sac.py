@@ -3,14 +3,17 @@
 Run: python -m pytest -q test_sac.py
 """
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-import torch.nn as nn
-import torch.nn.functional as F
 
 from tarl import SAC, ReplayBuffer, SACConfig, critic_loss, policy_loss, td_target, temperature_loss
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
+from plain_sac import PlainSAC  # noqa: E402  (the plain reference SAC, bench/speed.py's too)
 
 OBS_DIM, T_MAX, LOW, HIGH, B = 67, 10, -3.0, 2.0, 32  # sizes of the paper; [m/s^2] bounds of the actor
 CFG = SACConfig(hidden=64)  # smaller than Table 2's 256 to keep the tests fast; the code is size-agnostic
@@ -103,52 +106,17 @@ def test_timing_taker_target_discounts_by_gamma_to_the_T():
     assert not torch.allclose(td_target(agent, flat)[1:3], td_target(agent, batch)[1:3])
 
 
-def separate_critics(twin):
-    """Two plain nn.Sequential critics (nn.Linear layers) carrying the twin critic's weights, in float64."""
-    nets = []
-    for k in range(2):
-        w1 = twin.w1_obs[k] if twin.w1_act is None else torch.cat([twin.w1_obs[k], twin.w1_act[k]])
-        weights = [(w1, twin.b1[k, 0]), (twin.w2[k], twin.b2[k, 0]), (twin.w3[k], twin.b3[k, 0])]
-        linears = [nn.Linear(*w.shape) for w, _ in weights]
-        with torch.no_grad():
-            for linear, (w, b) in zip(linears, weights):
-                linear.weight.copy_(w.T)
-                linear.bias.copy_(b)
-        nets.append(nn.Sequential(linears[0], nn.ReLU(), linears[1], nn.ReLU(), linears[2]).double())
-    return nets
-
-
-def textbook_sample(agent, obs, eps):
-    """Squashed Gaussian in float64 with torch.distributions and the textbook Jacobian log(scale (1 - tanh^2))."""
-    mean, log_std = agent.policy(obs).double().chunk(2, -1)
-    std = log_std.clamp(-20, 2).exp()
-    u = mean + std * eps.double()
-    scale, bias = (HIGH - LOW) / 2, (HIGH + LOW) / 2
-    log_prob = torch.distributions.Normal(mean, std).log_prob(u) - torch.log(scale * (1 - torch.tanh(u) ** 2))
-    return bias + scale * torch.tanh(u), log_prob.sum(-1)
-
-
 def test_continuous_losses_equal_a_straightforward_computation():
     torch.manual_seed(0)
     agent = trained(actor())
     batch = random_batch(agent)
-    d = {k: v.double() for k, v in batch.items()}
-    alpha, log_alpha = math.exp(agent.log_alpha.item()), agent.log_alpha.item()
-    q1, q2 = separate_critics(agent.critic)
-    q1_target, q2_target = separate_critics(agent.critic_target)
+    plain = PlainSAC.from_sac(agent, torch.float64)  # separate nn.Sequential critics, the textbook Jacobian
     with torch.no_grad():
         torch.manual_seed(1)
-        a_next, log_prob_next = textbook_sample(agent, batch["next_obs"], torch.randn(B, 1))
-        x_next = torch.cat([d["next_obs"], a_next], 1)
-        v_next = torch.min(q1_target(x_next), q2_target(x_next)).squeeze(1) - alpha * log_prob_next
-        y = d["rew"] + d["discount"] * (1 - d["done"]) * v_next
-        x = torch.cat([d["obs"], d["act"]], 1)
-        expected_critic = F.mse_loss(q1(x).squeeze(1), y) + F.mse_loss(q2(x).squeeze(1), y)
+        expected_critic = plain.critic_loss(plain.cast(batch))
         torch.manual_seed(2)
-        a, log_prob = textbook_sample(agent, batch["obs"], torch.randn(B, 1))
-        x_pi = torch.cat([d["obs"], a], 1)
-        expected_policy = (alpha * log_prob - torch.min(q1(x_pi), q2(x_pi)).squeeze(1)).mean()
-        expected_temperature = (-log_alpha * (log_prob + agent.target_entropy)).mean()
+        expected_policy, log_prob, _ = plain.policy_loss(plain.cast(batch)["obs"])
+        expected_temperature = plain.temperature_loss(log_prob)
     torch.manual_seed(1)
     got_critic = critic_loss(agent, batch)[0]
     torch.manual_seed(2)
@@ -163,24 +131,11 @@ def test_discrete_losses_equal_a_straightforward_computation():
     torch.manual_seed(0)
     agent = trained(timing_taker())
     batch = random_batch(agent)
-    d = {k: v.double() for k, v in batch.items()}
-    alpha, log_alpha = math.exp(agent.log_alpha.item()), agent.log_alpha.item()
-    q1, q2 = separate_critics(agent.critic)
-    q1_target, q2_target = separate_critics(agent.critic_target)
+    plain = PlainSAC.from_sac(agent, torch.float64)
     with torch.no_grad():
-        logits_next = agent.policy(batch["next_obs"]).double()
-        probs_next, log_probs_next = F.softmax(logits_next, 1), F.log_softmax(logits_next, 1)
-        min_q_next = torch.min(q1_target(d["next_obs"]), q2_target(d["next_obs"]))
-        v_next = (probs_next * (min_q_next - alpha * log_probs_next)).sum(1)
-        y = d["rew"] + d["discount"] * (1 - d["done"]) * v_next
-        index = (batch["act"] - 1).view(-1, 1)
-        expected_critic = (F.mse_loss(q1(d["obs"]).gather(1, index).squeeze(1), y)
-                           + F.mse_loss(q2(d["obs"]).gather(1, index).squeeze(1), y))
-        logits = agent.policy(batch["obs"]).double()
-        probs, log_probs = F.softmax(logits, 1), F.log_softmax(logits, 1)
-        min_q = torch.min(q1(d["obs"]), q2(d["obs"]))
-        expected_policy = (probs * (alpha * log_probs - min_q)).sum(1).mean()
-        expected_temperature = (probs * (-log_alpha * (log_probs + agent.target_entropy))).sum(1).mean()
+        expected_critic = plain.critic_loss(plain.cast(batch))
+        expected_policy, log_probs, probs = plain.policy_loss(plain.cast(batch)["obs"])
+        expected_temperature = plain.temperature_loss(log_probs, probs)
     got_critic, q = critic_loss(agent, batch)
     for q_obs in (None, q.detach()):  # computed afresh, or reused from the critic's forward pass as in update
         got_policy, entropy = policy_loss(agent, batch["obs"], q_obs)
@@ -188,6 +143,33 @@ def test_discrete_losses_equal_a_straightforward_computation():
         for got, expected in [(got_critic, expected_critic), (got_policy, expected_policy),
                               (got_temperature, expected_temperature)]:
             assert got.item() == pytest.approx(expected.item(), rel=1e-5, abs=1e-5)
+
+
+@pytest.mark.parametrize("make", [actor, timing_taker])
+def test_updates_equal_the_plain_reference_updates(make):
+    """tarl.SAC.update (twin critic batched, one fused Adam, one backward of the summed losses) against
+    bench/plain_sac.py's (separate critics and Adams, critic step first): five updates from the same weights."""
+    torch.manual_seed(0)
+    agent = make()
+    with torch.no_grad():
+        agent.log_alpha.fill_(math.log(0.3))  # a temperature away from 1, so that alpha terms matter
+    plain, start = PlainSAC.from_sac(agent, torch.float32), PlainSAC.from_sac(agent, torch.float32)
+    for i in range(5):
+        batch = random_batch(agent, seed=100 + i)
+        torch.manual_seed(10 + i)  # the same a' and a samples in both
+        logs = agent.update(batch)
+        torch.manual_seed(10 + i)
+        expected = [float(logs[k]) for k in ("critic_loss", "policy_loss", "temperature_loss")]
+        assert list(plain.update(batch)) == pytest.approx(expected, rel=1e-5, abs=1e-5)
+    moved = PlainSAC.from_sac(agent, torch.float32)  # tarl's weights after the updates, laid out as plain's
+    for net in ("actor", "qf1", "qf2", "qf1_target", "qf2_target"):  # steps of ~lr = 3e-4; tau moves targets less
+        atol = 1e-6 if net.endswith("target") else 1e-5
+        for got, expected, before in zip(*(getattr(x, net).parameters() for x in (moved, plain, start))):
+            torch.testing.assert_close(got, expected, rtol=0, atol=atol)
+        assert max((got - before).abs().max() for got, before in zip(*(getattr(x, net).parameters()
+                                                                        for x in (moved, start)))) > 10 * atol
+    torch.testing.assert_close(moved.log_alpha, plain.log_alpha, rtol=0, atol=1e-5)
+    assert abs(moved.log_alpha.item() - math.log(0.3)) > 1e-3
 
 
 @pytest.mark.parametrize("make", [actor, timing_taker])

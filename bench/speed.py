@@ -5,11 +5,12 @@
     python bench/speed.py --quick         # fewer repetitions (a smoke test, noisier)
 
 (a) SAC updates per second at the paper's sizes (Table 2: batch 256, two hidden layers of 256,
-    observation 67, twin critics, automatic temperature): tarl.SAC.update against a plain
-    reference update written here the usual way (separate critic modules, separate standard Adam
-    optimizers, critic step before policy step, a per-parameter soft-update loop), for the
-    actor's continuous SAC and the timing taker's discrete SAC. Also the machine's matrix-multiply
-    peak and the FLOPs of one update (counted by torch), so the ceiling peak / FLOPs is known.
+    observation 67, twin critics, automatic temperature): tarl.SAC.update against the plain
+    reference update of bench/plain_sac.py, written the usual way (separate critic modules, separate
+    standard Adam optimizers, critic step before policy step, a per-parameter soft-update loop) and
+    equal to tarl.SAC's update (test_sac.py checks it), for the actor's continuous SAC and the timing
+    taker's discrete SAC. Also the machine's matrix-multiply peak and the FLOPs of one update
+    (counted by torch), so the ceiling peak / FLOPs is known.
 (b) Environment steps per second on each scenario: bare SUMO stepping (simulationStep alone, the
     humans still spawning, no ego) against the full environment step (SUMO, its queries, the
     observation, the base planner, the level-k game, the collision check); the time SUMO's step
@@ -26,9 +27,7 @@ gives medians (rates) and the median of the per-round paired ratios.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
-import math
 import os
 import platform
 import statistics
@@ -38,119 +37,23 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import tarl  # noqa: E402  (before torch: torch's threads then wait as they do in training)
 import baselines  # noqa: E402
 import numpy as np  # noqa: E402
 import planner  # noqa: E402
 import torch  # noqa: E402
-import torch.nn.functional as F  # noqa: E402
-from tarl import SAC, SACConfig, mlp  # noqa: E402
+from plain_sac import PlainSAC  # noqa: E402
+from tarl import SAC, SACConfig  # noqa: E402
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
-OBS_DIM, T_MAX, LOW, HIGH = tarl.OBS_DIM, tarl.T_MAX, -3.0, 2.0
+OBS_DIM, LOW, HIGH = tarl.OBS_DIM, -3.0, 2.0  # the observation; the actor's bounds [m/s^2]
+T_MAX = 10  # the paper's T_max: the timing taker's choices T = 1..10, the discrete head's size
 med = statistics.median
 
 
 # ---- (a) SAC ------------------------------------------------------------------------------
-
-class PlainSAC:
-    """Plain SAC update for reference: continuous (act_dim) or discrete (n_actions, choices 1..n)."""
-
-    def __init__(self, obs_dim, act_dim=None, n_actions=None, cfg=SACConfig(), target_entropy=None):
-        self.cfg, self.discrete = cfg, n_actions is not None
-        out = n_actions if self.discrete else 2 * act_dim
-        q_in, q_out = (obs_dim, n_actions) if self.discrete else (obs_dim + act_dim, 1)
-        self.actor = mlp(obs_dim, out, cfg.hidden)
-        self.qf1, self.qf2 = mlp(q_in, q_out, cfg.hidden), mlp(q_in, q_out, cfg.hidden)
-        self.qf1_target, self.qf2_target = copy.deepcopy(self.qf1), copy.deepcopy(self.qf2)
-        self.q_optimizer = torch.optim.Adam([*self.qf1.parameters(), *self.qf2.parameters()], lr=cfg.lr)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr)
-        self.log_alpha = torch.zeros(1, requires_grad=True)
-        self.a_optimizer = torch.optim.Adam([self.log_alpha], lr=cfg.lr)
-        self.alpha = 1.0
-        self.target_entropy = target_entropy if target_entropy is not None else -float(act_dim)
-        self.scale, self.bias = (HIGH - LOW) / 2, (HIGH + LOW) / 2
-
-    def get_action(self, obs):
-        mean, log_std = self.actor(obs).chunk(2, -1)
-        std = log_std.clamp(-20, 2).exp()
-        normal = torch.distributions.Normal(mean, std)
-        x = normal.rsample()
-        y = torch.tanh(x)
-        log_prob = normal.log_prob(x) - torch.log(self.scale * (1 - y.pow(2)) + 1e-6)
-        return y * self.scale + self.bias, log_prob.sum(1)
-
-    def get_probs(self, obs):
-        logits = self.actor(obs)
-        return F.softmax(logits, -1), F.log_softmax(logits, -1)
-
-    def update(self, b):
-        if self.discrete:
-            return self._update_discrete(b)
-        with torch.no_grad():
-            next_a, next_logp = self.get_action(b["next_obs"])
-            x = torch.cat([b["next_obs"], next_a], 1)
-            min_q = torch.min(self.qf1_target(x), self.qf2_target(x)).view(-1) - self.alpha * next_logp
-            y = b["rew"] + b["discount"] * (1 - b["done"]) * min_q
-        x = torch.cat([b["obs"], b["act"]], 1)
-        qf_loss = F.mse_loss(self.qf1(x).view(-1), y) + F.mse_loss(self.qf2(x).view(-1), y)
-        self.q_optimizer.zero_grad()
-        qf_loss.backward()
-        self.q_optimizer.step()
-
-        pi, logp = self.get_action(b["obs"])
-        x = torch.cat([b["obs"], pi], 1)
-        actor_loss = (self.alpha * logp - torch.min(self.qf1(x), self.qf2(x)).view(-1)).mean()
-        self.actor_optimizer.zero_grad()
-        actor_loss.backward()
-        self.actor_optimizer.step()
-
-        with torch.no_grad():
-            _, logp = self.get_action(b["obs"])
-        alpha_loss = (-self.log_alpha.exp() * (logp + self.target_entropy)).mean()
-        self.a_optimizer.zero_grad()
-        alpha_loss.backward()
-        self.a_optimizer.step()
-        self.alpha = self.log_alpha.exp().item()
-        self._soft_update()
-        return qf_loss.item(), actor_loss.item(), alpha_loss.item()
-
-    def _update_discrete(self, b):
-        with torch.no_grad():
-            probs, logp = self.get_probs(b["next_obs"])
-            min_q = torch.min(self.qf1_target(b["next_obs"]), self.qf2_target(b["next_obs"]))
-            v = (probs * (min_q - self.alpha * logp)).sum(1)
-            y = b["rew"] + b["discount"] * (1 - b["done"]) * v
-        idx = (b["act"] - 1).view(-1, 1)
-        q1, q2 = self.qf1(b["obs"]).gather(1, idx).view(-1), self.qf2(b["obs"]).gather(1, idx).view(-1)
-        qf_loss = F.mse_loss(q1, y) + F.mse_loss(q2, y)
-        self.q_optimizer.zero_grad()
-        qf_loss.backward()
-        self.q_optimizer.step()
-
-        probs, logp = self.get_probs(b["obs"])
-        with torch.no_grad():
-            min_q = torch.min(self.qf1(b["obs"]), self.qf2(b["obs"]))
-        actor_loss = (probs * (self.alpha * logp - min_q)).sum(1).mean()
-        self.actor_optimizer.zero_grad()
-        actor_loss.backward()
-        self.actor_optimizer.step()
-
-        probs, logp = probs.detach(), logp.detach()
-        alpha_loss = (probs * (-self.log_alpha.exp() * (logp + self.target_entropy))).sum(1).mean()
-        self.a_optimizer.zero_grad()
-        alpha_loss.backward()
-        self.a_optimizer.step()
-        self.alpha = self.log_alpha.exp().item()
-        self._soft_update()
-        return qf_loss.item(), actor_loss.item(), alpha_loss.item()
-
-    def _soft_update(self):
-        for net, target in ((self.qf1, self.qf1_target), (self.qf2, self.qf2_target)):
-            for p, tp in zip(net.parameters(), target.parameters()):
-                tp.data.copy_(self.cfg.tau * p.data + (1 - self.cfg.tau) * tp.data)
-
 
 def random_batches(n, obs_dim, discrete, batch_size=256, seed=0):
     g = torch.Generator().manual_seed(seed)
@@ -211,12 +114,12 @@ def update_gflop(agent, batch) -> float:
 
 def sac_section(rounds, k) -> dict:
     cfg = SACConfig()
-    actor, plain = SAC(OBS_DIM, act_dim=1, low=LOW, high=HIGH, cfg=cfg), PlainSAC(OBS_DIM, act_dim=1, cfg=cfg)
+    actor = SAC(OBS_DIM, act_dim=1, low=LOW, high=HIGH, cfg=cfg)
+    plain = PlainSAC(OBS_DIM, act_dim=1, low=LOW, high=HIGH, cfg=cfg)
     batches = random_batches(8, OBS_DIM, False)
     fast_c, plain_c, ratio_c = paired(actor, plain, batches, rounds, k)
     timing = SAC(OBS_DIM + 1, n_actions=T_MAX, cfg=cfg)
-    plain_t = PlainSAC(OBS_DIM + 1, n_actions=T_MAX, cfg=cfg,
-                       target_entropy=cfg.target_entropy_fraction * math.log(T_MAX))
+    plain_t = PlainSAC(OBS_DIM + 1, n_actions=T_MAX, cfg=cfg)  # H_bar = target_entropy_fraction log 10, as tarl.SAC's
     fast_d, plain_d, ratio_d = paired(timing, plain_t, random_batches(8, OBS_DIM + 1, True), rounds, k)
     peak, flop = matmul_gflops(), update_gflop(actor, batches[0])
     return dict(sac_updates_per_s=fast_c, sac_plain_updates_per_s=plain_c, sac_ratio=ratio_c,
@@ -304,10 +207,11 @@ def train_section(steps, warmup, rollout, time_limit=60.0) -> dict:
     # a loop of Alg. 1 ends with its episode: --quick shortens episodes, or a few steps become hundreds
     env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
     sac_cfg = SACConfig(learning_starts=256)
-    for phase in ("sac", "tarl"):  # plain SAC = Alg. 1 step 1; TARL without its step 1: both loops
-        tc = tarl.TrainConfig(steps=warmup, sac_fraction=0.0, timing_pretrain=0.05, timing_learning_starts=64,
+    # plain SAC = Alg. 1 step 1 (the actor loop alone); TARL without its step 1: both loops
+    for phase, timing in (("sac", "none"), ("tarl", "taker")):
+        tc = tarl.TrainConfig(steps=warmup, timing_pretrain=0.05, timing_learning_starts=64,
                               log_every=10**9, checkpoint_every=10**9)
-        trainer = tarl.Trainer(env, phase, tc, sac_cfg, log=lambda *a: None)
+        trainer = tarl.Trainer(env, phase, tc, sac_cfg, log=lambda *a: None, timing=timing, step_one=False)
         trainer.run()  # warm-up: buffers past N_start, updates running
         trainer.tc = replace(tc, steps=trainer.step + steps)
         start, step0, updates = time.perf_counter(), trainer.step, dict(trainer.updates)
@@ -321,7 +225,7 @@ def train_section(steps, warmup, rollout, time_limit=60.0) -> dict:
     for algo in ("ppo-lag", "cpo"):  # env-bound: a rollout of N steps, then one update on it
         env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
         tc = tarl.TrainConfig(steps=2 * rollout, log_every=10**9, checkpoint_every=10**9)
-        trainer = baselines.OnPolicyTrainer(env, algo, tc, baselines.SafeRLConfig(rollout=rollout), log=lambda *a: None)
+        trainer = baselines.OnPolicyTrainer(env, algo, tc, log=lambda *a: None, cfg=baselines.SafeRLConfig(rollout=rollout))
         start = time.perf_counter()
         trainer.run()
         out[algo] = trainer.step / (time.perf_counter() - start)
