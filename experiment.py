@@ -335,17 +335,31 @@ def table(results: list[dict]) -> str:
 # ---- Command line ------------------------------------------------------------------------------------
 
 
+class Help(argparse.ArgumentDefaultsHelpFormatter):
+    """--help with each default, except those given in the text (None here)."""
+
+    def _get_help_string(self, action):
+        return action.help if action.default is None else super()._get_help_string(action)
+
+
+DEFAULTS = dict(steps=TrainConfig.steps, eval_rounds=10, eval_cases=200)  # Table 3's protocol at the default budget
+PRESETS = {"lab": dict(steps=30_000, eval_rounds=2, eval_cases=50)}  # a curve and a short evaluation in a class
+
+
 def parse_args(argv=None):
     """The command line, all of it checked before any work: a bad value is one line, not a late traceback."""
     p = argparse.ArgumentParser(prog="tarl.py", description="Train timing-aware RL (or a baseline) in SUMO, then "
-                                "evaluate it as Table 3 does.", formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                "evaluate it as Table 3 does.", formatter_class=Help)
     p.add_argument("--scenario", choices=sorted(SCENARIOS), default="roundabout")
     p.add_argument("--algo", choices=tuple(ROWS), default="tarl",
                    help="the row of Table 3 to train and evaluate; Lattice-IDM is evaluated beside it")
-    p.add_argument("--steps", type=int, default=TrainConfig.steps, help="simulator steps of training (Table 2: 500000)")
+    p.add_argument("--preset", choices=tuple(PRESETS), help="lab: a class's run, a few minutes on 2 cores: "
+                   "--steps 30000 --eval-rounds 2 --eval-cases 50 --out runs/lab/SCENARIO-ALGO-sSEED")
+    p.add_argument("--steps", type=int, help=f"simulator steps of training (default {TrainConfig.steps:,}; Table 2: "
+                   "500,000)")
     p.add_argument("--seed", type=int, default=0, help="seeds training and the evaluation rounds")
-    p.add_argument("--eval-rounds", type=int, default=10, help="R of Table 3")
-    p.add_argument("--eval-cases", type=int, default=200, help="C of Table 3: test cases per round")
+    p.add_argument("--eval-rounds", type=int, help="R of Table 3 (default 10)")
+    p.add_argument("--eval-cases", type=int, help="C of Table 3: test cases per round (default 200)")
     p.add_argument("--out", type=Path, help="run directory (default runs/SCENARIO-ALGO-sSEED): train_log.csv, "
                    "ckpt.pt, policy.pt, eval.json (eval-rounds/ while evaluating)")
     p.add_argument("--load", type=Path, metavar="CKPT", help="evaluate this ckpt.pt or policy.pt instead of training")
@@ -368,6 +382,8 @@ def parse_args(argv=None):
                    "Eq. (26) (default 0 0.5)")
     w.add_argument("--human-level", type=int, choices=(0, 2), help="the humans' level k in the game (default 2)")
     args = p.parse_args(argv)
+    for key, value in (PRESETS[args.preset] if args.preset else DEFAULTS).items():
+        setattr(args, key, value if getattr(args, key) is None else getattr(args, key))
     if min(args.eval_rounds, args.eval_cases, args.steps, args.threads, args.workers + 1) < 1:
         p.error("--steps, --eval-rounds, --eval-cases and --threads must be at least 1, --workers at least 0")
     if args.load and args.resume:
@@ -391,7 +407,7 @@ def parse_args(argv=None):
         p.error("--svo LOW HIGH: 0 <= LOW <= HIGH <= 1")
     if args.spawn_gap is not None and not args.spawn_gap > 0:
         p.error("--spawn-gap must be positive [s]")
-    args.out = args.out or Path("runs") / f"{args.scenario}-{args.algo}-s{args.seed}"
+    args.out = args.out or Path("runs") / ("lab" if args.preset else "") / f"{args.scenario}-{args.algo}-s{args.seed}"
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / ".write-test").write_text("")
