@@ -12,13 +12,9 @@ info["cost"] (1 at a collision). A collision ends the episode, so J_c is the col
 
 As OmniSafe and Safe-Policy-Optimization (SafePO) do it, departures commented. Map: SafeRLConfig; J_c and lambda:
 CostConstraint, Lagrange, PIDLagrange (Stooke's Alg. 2); ConstrainedTrainer (on tarl.Trainer); SAC-Lag, SAC-PID:
-ConstrainedSAC, cost_td_target, SafeSACTrainer; PPO-Lag, CPO: OnPolicyTrainer, OnPolicyAgent, GaussianPolicy, gae
-(Schulman et al. 2016), ppo_clip_loss (PPO, Schulman et al. 2017, Eq. (7)), lagrangian_advantage; CPO's update
-(Achiam et al. 2017, Eqs. (11)-(14)): conjugate_gradient, fisher_vector_product, cpo_direction,
-backtracking_line_search.
-
-Eq. (n) alone is the TARL paper's (PAPER.md); another paper's equation carries that paper's name on its line, as in
-"PPO (Schulman et al. 2017), Eq. (7)".
+ConstrainedSAC, cost_td_target, SafeSACTrainer; PPO-Lag, CPO: OnPolicyTrainer, OnPolicyAgent, GaussianPolicy, gae,
+ppo_clip_loss, lagrangian_advantage; CPO's update: conjugate_gradient, fisher_vector_product, cpo_direction,
+backtracking_line_search. Eq. (n) alone is the TARL paper's; another paper's carries its name, as "CPO's Eq. (13)".
 """
 from __future__ import annotations
 
@@ -187,10 +183,8 @@ def cpo_direction(g: Tensor, b: Tensor, c: float, Hinv_g: Tensor, Hinv_b: Tensor
     """The step x* for CPO (Achiam et al. 2017), Eq. (11), and its case (numbered as in SafePO and OmniSafe). With
     q = g^T H^-1 g, r = g^T H^-1 b, s = b^T H^-1 b, A = q - r^2 / s, B = 2 delta - c^2 / s:
       4: b ~ 0 and c < 0, 3: c < 0, B < 0 (the trust region is feasible): TRPO's sqrt(2 delta / q) H^-1 g;
-      2: c < 0 <= B, 1: c >= 0, B >= 0 (c + b^T x = 0 crosses the trust region):
-         CPO (Achiam et al. 2017), Eq. (13) from Eq. (12);
-      0: c >= 0, B < 0 (no feasible point): the recovery x* = -sqrt(2 delta / s) H^-1 b,
-         CPO (Achiam et al. 2017), Eq. (14)."""
+      2: c < 0 <= B, 1: c >= 0, B >= 0 (c + b^T x = 0 crosses the trust region): CPO's Eq. (13) from its (12);
+      0: c >= 0, B < 0 (no feasible point): the recovery x* = -sqrt(2 delta / s) H^-1 b, CPO's Eq. (14)."""
     q, r, s = float(g @ Hinv_g), float(g @ Hinv_b), float(b @ Hinv_b)
     if float(b @ b) <= 1e-6 and c < 0:  # the cost surrogate is flat: TRPO (Schulman et al. 2015)
         return math.sqrt(2 * delta / (q + EPS)) * Hinv_g, 4
@@ -200,8 +194,7 @@ def cpo_direction(g: Tensor, b: Tensor, c: float, Hinv_g: Tensor, Hinv_b: Tensor
     if B < 0:  # CPO (Achiam et al. 2017), Eq. (14): the infeasible recovery, the cost's steepest descent in the region
         return -math.sqrt(2 * delta / (s + EPS)) * Hinv_b, 0
     # CPO (Achiam et al. 2017), Eq. (12) in closed form (its appendix): the better of f_a (nu* > 0) and f_b (nu* = 0),
-    # each maximiser projected on its interval. The appendix minimises g^T x; for our ascent g, r flips sign (SafePO
-    # and OmniSafe do not).
+    # each projected on its interval. The appendix minimises g^T x: for our ascent r flips sign (SafePO, OmniSafe: not)
     split = max(-r / (c - EPS if c < 0 else c + EPS), 0.0)  # lambda c + r changes sign (lambda >= 0)
     (lo_a, hi_a), (lo_b, hi_b) = ((0.0, split), (split, math.inf)) if c < 0 else ((split, math.inf), (0.0, split))
     lam_a = min(max(math.sqrt(A / (B + EPS)), lo_a), hi_a)
@@ -228,11 +221,13 @@ def backtracking_line_search(step: Tensor, evaluate: Callable[[Tensor], tuple[fl
 
 
 class ConstrainedTrainer(tarl.Trainer):
-    """tarl.Trainer (run, rows, logs, checkpoints; a subclass replaces its SAC) with a cost: J_c over the recent
+    """tarl.Trainer (run, logs, checkpoints; a subclass replaces its SAC) with a cost: J_c over the recent
     episodes in `constraint`, SAC-Lag's and SAC-PID's lambda updated at every episode's end, constraint_log.csv."""
 
-    def __init__(self, env: tarl.DrivingEnv, algo: str, tc: tarl.TrainConfig, sac_cfg: tarl.SACConfig, seed, out, log):
-        super().__init__(env, algo, tc, sac_cfg, seed, out, log, timing="none", step_one=False)  # plain SAC's loop
+    def __init__(self, env: tarl.DrivingEnv, algo: str, tc: tarl.TrainConfig, sac_cfg: tarl.SACConfig, seed, out, log,
+                 timing: str, step_one: bool):
+        assert timing == "none" and not step_one, "a safe-RL row is the actor alone (experiment.ROWS)"
+        super().__init__(env, algo, tc, sac_cfg, seed, out, log, timing, step_one)  # plain SAC's actor loop
         self.episode_cost, self.episode_steps = 0.0, 0
         self.log = tarl.TrainLog(out, tc.steps, lambda line: log(f"{line} | J_c {self.constraint.cost:.3f}" + (
             f", lambda {self.constraint.multiplier.value:.3f}" if self.constraint.multiplier else "")))
@@ -300,8 +295,7 @@ class SafeSACTrainer(ConstrainedTrainer):
 
     def __init__(self, env, algo: str, tc, sac_cfg=tarl.SACConfig(), seed=0, out=None, log=print, timing="none",
                  step_one=False, cfg=SafeRLConfig()):
-        assert timing == "none" and not step_one, "the safe-RL rows are the actor alone (experiment.ROWS)"
-        super().__init__(env, algo, tc, sac_cfg, seed, out, log)
+        super().__init__(env, algo, tc, sac_cfg, seed, out, log, timing, step_one)
         space, d = env.action_space, cfg.cost_limit
         multiplier = Lagrange(d, cfg.lagrange_lr) if algo == "sac-lag" else PIDLagrange(d, *cfg.pid_gains)
         self.constraint = CostConstraint(d, cfg.window, multiplier)
@@ -373,8 +367,7 @@ class OnPolicyTrainer(ConstrainedTrainer):
 
     def __init__(self, env, algo: str, tc, sac_cfg=None, seed=0, out=None, log=print, timing="none", step_one=False,
                  cfg=SafeRLConfig()):
-        assert timing == "none" and not step_one, "the safe-RL rows are the actor alone (experiment.ROWS)"
-        super().__init__(env, algo, tc, tarl.SACConfig(buffer_size=1), seed, out, log)  # its SAC replaced here
+        super().__init__(env, algo, tc, tarl.SACConfig(buffer_size=1), seed, out, log, timing, step_one)  # SAC replaced
         multiplier = Lagrange(cfg.cost_limit, cfg.rollout_lagrange_lr) if algo == "ppo-lag" else None
         columns = ("step", "J_c", "lambda") if multiplier else ("step", "J_c", "cpo_case", "trial")
         self.cfg, self.constraint = cfg, CostConstraint(cfg.cost_limit, cfg.window, multiplier, columns)
