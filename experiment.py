@@ -45,13 +45,15 @@ class Row:
     timing: str  # its tarl.Driver's timing
     step_one: bool  # Algorithm 1's step 1 (plain SAC for TrainConfig.sac_fraction of the steps) comes first
     trainer: type | None  # tarl.Trainer or a trainer of baselines.py; None: nothing to train
+    imagination: str = "phased"  # what its timing imagination executes (TrainConfig.imagination)
 
 
 ROWS = {
     "tarl": Row("TARL", "taker", True, tarl.Trainer),
     "tarl-fixed-t": Row("TARL, T = 2 fixed", "fixed", True, tarl.Trainer),  # ablation: no timing taker
     "tarl-random-t": Row("TARL, T random", "random", True, tarl.Trainer),  # ablation: no timing taker
-    "tarl-consistent": Row("TARL, consistent T", "phased", True, tarl.Trainer),  # beyond the paper (PAPER.md)
+    "tarl-consistent": Row("TARL, phased real loop", "phased", True, tarl.Trainer),  # beyond the paper (PAPER.md)
+    "tarl-held": Row("TARL, held imagination", "taker", True, tarl.Trainer, "held"),  # beyond the paper (PAPER.md)
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),
@@ -68,6 +70,7 @@ def make_trainer(algo: str, env: DrivingEnv, tc: TrainConfig, seed: int = 0, out
     networks' sizes the trainer takes."""
     row = ROWS[algo]
     sac_cfg = SACConfig(**state["config"]["sac"]) if state else SACConfig()
+    tc = replace(tc, imagination=row.imagination)
     return row.trainer(env, algo, tc, sac_cfg, seed, out, log, timing=row.timing, step_one=row.step_one)
 
 

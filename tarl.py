@@ -415,6 +415,9 @@ class TrainConfig:
     log_every: int = 2000  # [steps] between progress lines
     checkpoint_every: int = 20_000  # [steps] between checkpoints: an interruption loses little
     timing: TimingConfig = TimingConfig()  # w and T_max
+    # What a decision of the timing imagination executes: "phased", Eq. (7) (the paper's); "held", beyond the
+    # paper (PAPER.md, 6): beta(T) of Eq. (11) for T steps with a fresh a_t each step, as the real loop does
+    imagination: str = "phased"
 
 
 LOG_HEADER = ["step", "loop", "episode_return", "success", "collision", "timeout", "crossing_time", "mean_beta"]
@@ -541,7 +544,8 @@ class Trainer:
 
     def imagination_loop(self):
         """Alg. 1 lines 4-15: N_T decisions of the timing taker, then to the episode's end. A decision
-        plays a_t over T steps by Eq. (7), the base action recomputed at each step."""
+        plays a_t over T steps by Eq. (7), the base action recomputed at each step (TrainConfig.imagination
+        "held", beyond the paper: the real loop's beta(T) of Eq. (11) for T steps, a fresh a each step)."""
         n, done, gamma = 0, False, self.sac_cfg.gamma
         while n < self.tc.n_timing or not done:
             s = self.obs
@@ -549,10 +553,12 @@ class Trainer:
             x = timing_input(s, a, self.env.cfg)
             T = self.timing_taker.act(x)  # line 6
             rewards = []
+            a_dt, held = a, self.tc.imagination == "held"
             for dt in range(1, T + 1):  # lines 7-10
-                b = float(beta(T, dt, omega=self.tc.timing.omega))
-                # Eq. (7): a_bar_{t+dt} = beta(T, dt) a_t + (1 - beta(T, dt)) a_base,t+dt
-                s2, r, terminated, truncated, info = self.env.step(blend(float(a[0]), self.env.base_action(), b))
+                b = float(beta(T, 1 if held else dt, omega=self.tc.timing.omega))
+                a_dt = self.actor.act(self.obs) if held and dt > 1 else a_dt
+                # Eq. (7): a_bar_{t+dt} = beta(T, dt) a_t + (1 - beta(T, dt)) a_base,t+dt ("held": beta(T) a_t+dt + ...)
+                s2, r, terminated, truncated, info = self.env.step(blend(float(a_dt[0]), self.env.base_action(), b))
                 rewards.append(r)
                 done = terminated or truncated
                 self.obs = self.env.reset()[0] if done else s2

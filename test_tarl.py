@@ -239,3 +239,33 @@ def test_the_consistent_variant_executes_in_the_real_loop_what_its_imagination_e
             break
     assert i == len(steps) >= SMALL.n_actor
     env.close()
+
+
+def test_the_held_imagination_executes_the_real_loops_beta_T_with_a_fresh_action_and_stores_r_T(trainer):
+    """tarl-held (beyond the paper): a decision of T holds beta(T) of Eq. (11) for T steps, the actor asked anew at
+    each, as the real loop executes it; D_T gets the same (x, T, r_T, gamma^k) as an Eq. (7) decision."""
+    import dataclasses
+    trainer.obs, _ = trainer.env.reset(seed=6)  # the tests above took the simulation over
+    trainer.tc = dataclasses.replace(trainer.tc, imagination="held")
+    try:
+        timings, proposals = record_calls(trainer.timing_taker, "act"), record_calls(trainer.actor, "act")
+        trainer.env.steps.clear()
+        start = len(trainer.D_T)
+        trainer.imagination_loop()
+        del trainer.timing_taker.act, trainer.actor.act
+    finally:
+        trainer.tc = dataclasses.replace(trainer.tc, imagination="phased")
+    steps, asked, gamma = iter(trainer.env.steps), iter(proposals), SMALL_SAC.gamma
+    for i, T in enumerate(timings):
+        rewards = []
+        for dt in range(1, T + 1):
+            a_bar, a_base, r, done = next(steps)
+            a = next(asked)  # dt = 1: the a_t beside s_t in D_T; then a fresh one each step
+            assert a_bar == pytest.approx(tarl.blend(a[0], a_base, tarl.beta(T, omega=W)), abs=1e-12)
+            rewards.append(r)
+            if done:
+                break
+        assert trainer.D_T.data["act"][start + i] == T
+        assert trainer.D_T.data["rew"][start + i] == pytest.approx(sum(gamma**j * r for j, r in enumerate(rewards)))
+        assert trainer.D_T.data["discount"][start + i] == pytest.approx(gamma ** len(rewards))
+    assert next(steps, None) is None and next(asked, None) is None

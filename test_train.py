@@ -165,3 +165,22 @@ def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypat
         log.progress(step, "x")
         now[0] += 2.0 if step < 6_000 else 20.0
     assert " 100 steps/s, ETA  13.0 min" in lines[-1]  # (100,000 - 22,000) / 100 s
+
+
+@pytest.mark.parametrize("algo", ["tarl-consistent", "tarl-held"])
+def test_short_runs_of_the_variants_update_both_agents_and_their_checkpoints_load(algo, env, tmp_path):
+    """The two variants beyond the paper (PAPER.md, 6), as experiment.ROWS builds them: every phase runs, both
+    agents update, and the checkpoint acts the same in a fresh trainer with the variant's own loops."""
+    small = dict(config=dict(sac=vars(SMALL_SAC)))  # make_trainer takes the networks' sizes from a checkpoint's
+    trainer = experiment.make_trainer(algo, env, SMALL, seed=1, out=tmp_path, state=small, **QUIET)
+    assert trainer.driver.timing == experiment.ROWS[algo].timing and trainer.tc.imagination == experiment.ROWS[algo].imagination
+    trainer.run()
+    assert trainer.updates["actor"] > 50 and trainer.updates["timing"] > 5
+    state = experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", algo)
+    assert state["config"]["train"]["imagination"] == experiment.ROWS[algo].imagination
+    fresh = experiment.make_trainer(algo, env, SMALL, seed=2, state=state, **QUIET)
+    fresh.load(state, resume=True)
+    obs = np.random.default_rng(0).uniform(0, 1, (4, tarl.OBS_DIM)).astype(np.float32)
+    x = np.concatenate([obs, np.zeros((4, 1), np.float32)], 1)
+    np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
+    assert fresh.driver.timing == trainer.driver.timing and fresh.tc.imagination == trainer.tc.imagination
