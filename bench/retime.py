@@ -117,9 +117,9 @@ def main():
         p.error(f"no shipped TARL policy for: {', '.join(missing)} (results/runs/SCENARIO-tarl-sSEED/policy.pt)")
     if not args.collect_only:
         args.work.mkdir(parents=True, exist_ok=True)
-        for scenario in args.scenarios:
-            for seed in args.seeds:
-                for timing in args.timings:
+        for timing in args.timings:  # in the order given: each timing on both scenarios before the next
+            for scenario in args.scenarios:
+                for seed in args.seeds:
                     if not (args.results / f"{cell(scenario, seed, timing)}.json").exists():
                         run(scenario, seed, timing, args)
     collect(args)
