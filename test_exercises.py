@@ -1,17 +1,27 @@
 """Tests of exercises/: each checker passes its reference solution and fails the stub and every kept wrong
 answer with a message that names the mistake; the stored answers are still the project's; the bug hunt's
-copy of world.observe differs from it where it should, and nowhere a shape or a range would show.
-(Instructors only: these tests name the bug hunt's bug.)"""
+copy of world.observe differs from it where it should, and nowhere a shape or a range would show; in vivo,
+a solution drives as the project does and a wrong answer is caught at a named case; the paired statistics
+are exact and agree with results/table3.md; every command of EXERCISES.md runs at a tiny budget and exits
+as its comment says. (Instructors only: these tests name the bug hunt's bug.)"""
+import importlib
+import json
 import math
+import re
+import runpy
+import shlex
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import experiment  # noqa: I001 (first: through tarl it sets OpenMP's wait policy before torch loads)
 import numpy as np
 import pytest
-
+import torch
 import world
-from exercises import bughunt_observe, check, make_data
+from exercises import bughunt_observe, check, in_vivo, make_data, paired
 from exercises.common import CFG
 from exercises.solutions import ex2_observation
 
@@ -98,16 +108,16 @@ def test_the_reference_and_the_solution_put_each_vehicle_in_its_sector(deg):
 
 
 @pytest.mark.parametrize("deg", WORLD_CASES)
-def test_the_bugged_copy_swaps_left_and_right(deg):
-    mirror = WORLD_CASES[-deg if deg != 180 else 180]
-    assert sector_of_one_vehicle(bughunt_observe.observe, deg) == mirror
-    if mirror != WORLD_CASES[deg]:  # all but straight ahead and straight behind
-        assert sector_of_one_vehicle(bughunt_observe.observe, deg) != sector_of_one_vehicle(world.observe, deg)
+def test_the_bugged_copy_sees_each_vehicle_where_the_opposite_one_would_be(deg):
+    """The bug: rel = ego - other, so the position angle is off by 180 deg: ahead <-> behind, left <-> right."""
+    opposite = deg - 180 if deg > 0 else deg + 180
+    assert sector_of_one_vehicle(bughunt_observe.observe, deg) == WORLD_CASES[opposite]
+    assert sector_of_one_vehicle(bughunt_observe.observe, deg) != sector_of_one_vehicle(world.observe, deg)
 
 
-def test_a_vehicle_at_plus_60_degrees_is_left_front_but_the_bugged_copy_says_right_front():
-    assert sector_of_one_vehicle(world.observe, 60.0) == "left front"
-    assert sector_of_one_vehicle(bughunt_observe.observe, 60.0) == "right front"
+def test_a_vehicle_straight_ahead_is_front_but_the_bugged_copy_says_rear():
+    assert sector_of_one_vehicle(world.observe, 0.0) == "front"
+    assert sector_of_one_vehicle(bughunt_observe.observe, 0.0) == "rear"
 
 
 def test_the_bug_is_silent_shapes_ranges_and_counts_are_right():
@@ -126,7 +136,167 @@ def test_the_bug_is_silent_shapes_ranges_and_counts_are_right():
 def test_the_bug_hunt_checker_fails_on_the_bugged_copy_and_passes_once_the_line_is_fixed(tmp_path):
     assert not check.run("bughunt").ok
     source = check.path_of("bughunt").read_text()
-    assert source.count("ego_heading - bearing") == 1
+    assert source.count("rel = ego_xy - others[:, :2]") == 1
     fixed = tmp_path / "bughunt_fixed.py"
-    fixed.write_text(source.replace("ego_heading - bearing", "bearing - ego_heading"))
+    fixed.write_text(source.replace("rel = ego_xy - others[:, :2]", "rel = others[:, :2] - ego_xy"))
     assert check.run("bughunt", fixed).ok
+
+
+# ---- In vivo: the student's functions in the simulation -------------------------------------------
+
+def test_in_vivo_passes_on_a_solution_and_names_the_first_case_a_wrong_answer_changes():
+    import tarl
+    beta, blend = tarl.beta, tarl.blend
+    said = []
+    assert in_vivo.run("1", check.load(check.path_of("1", solution=True)), "the solution", cases=3, log=said.append), said
+    assert "All 3 cases are the project's" in said[-1]
+    said = []
+    wrong = check.load(HERE / "exercises" / "wrong" / "ex1_dt_T_swapped.py")
+    assert not in_vivo.run("1", wrong, "a wrong answer", cases=3, log=said.append)
+    report = "\n".join(said)
+    assert "FAIL  case 0: collision" in report and "with only tarl.beta in place, case 0 differs too" in report, report
+    assert (tarl.beta, tarl.blend) == (beta, blend)  # restored
+
+
+def test_exercise_5_has_no_in_vivo_form_and_says_why():
+    run = subprocess.run([sys.executable, "-m", "exercises.check", "5", "--in-vivo"], cwd=HERE, capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 1 and "no in-vivo form" in run.stdout and "never calls them" in run.stdout, run.stdout
+
+
+def test_the_stored_in_vivo_cases_are_the_committed_evaluations_first_cases():
+    """data/in_vivo.json (make_data.py) against results/runs/roundabout-tarl-s0/eval.json: case c of a 20-case
+    round is case c of the committed 200-case round."""
+    stored = json.loads(in_vivo.REFERENCE.read_text())["cases"]
+    committed = json.loads((HERE / "results/runs/roundabout-tarl-s0/eval.json").read_text())["rows"][0]["cases"]
+    assert len(stored) == in_vivo.CASES
+    for mine, theirs in zip(stored, committed):
+        assert theirs["round"] == 0 and mine["case"] == theirs["case"]
+        assert {k: mine[k] for k in ("start", "outcome", "steps")} == {k: theirs[k] for k in ("start", "outcome", "steps")}
+        assert mine["crossing_time"] == pytest.approx(theirs["crossing_time"]) if theirs["crossing_time"] else mine["crossing_time"] is None
+
+
+def test_a_swapped_quintic_coefficients_takes_effect_through_the_lru_cache(monkeypatch):
+    """planner.lattice caches the quintics of Eq. (19) per config: a plain setattr changes nothing, the
+    swap helper (which clears the cache) does, and restoring gives the project's plan back."""
+    import planner
+    cfg = world.EnvConfig().planner()
+    path_s, path_xy = np.array([0.0, 200.0]), np.array([[0.0, 0.0], [200.0, 0.0]])
+    ahead = np.array([[40.0, 0.0, 3.0, 0.0, 0.0]])  # a slow car 40 m ahead
+    plan = lambda: planner.plan(5.0, 6.0, 0.8, path_s, path_xy, ahead, cfg)  # noqa: E731 (a0 != 0: c4 matters)
+    project = plan()
+    wrong = check.load(HERE / "exercises" / "wrong" / "ex3_c4_is_a0.py").quintic_coefficients
+    with monkeypatch.context() as m:
+        m.setattr(planner, "quintic_coefficients", wrong)
+        assert plan().a_base == project.a_base  # the cached lattice still holds the project's quintics
+    with in_vivo.swapped({("planner", "quintic_coefficients"): wrong}):
+        swapped = plan()
+    assert swapped.a_base != project.a_base or not np.allclose(swapped.s, project.s)
+    restored = plan()
+    assert planner.quintic_coefficients is not wrong
+    assert restored.a_base == project.a_base and np.array_equal(restored.s, project.s)
+
+
+# ---- Lab 8: the paired statistics ------------------------------------------------------------------
+
+def test_mcnemar_and_the_sign_flip_test_are_exact():
+    assert paired.mcnemar(0, 0) == 1.0 and paired.mcnemar(5, 5) == 1.0
+    assert paired.mcnemar(1, 9) == 2 * (1 + 10) / 2**10  # 2 P(X <= 1), X ~ Bin(10, 1/2)
+    assert paired.mcnemar(9, 1) == paired.mcnemar(1, 9) and paired.mcnemar(0, 6) == 2 / 64
+    assert paired.mcnemar(3000, 0) == 0.0  # underflows cleanly, no OverflowError
+    assert paired.sign_flip(np.array([1.0, 2.0, 3.0])) == 0.25 and paired.sign_flip(np.array([1.0, -1.0])) == 1.0
+
+
+@pytest.mark.parametrize("scenario", ["intersection", "roundabout"])
+@pytest.mark.parametrize("other", ["tarl-fixed-t", "tarl-random-t", "sac", "lattice-idm"])
+def test_the_case_by_case_counts_are_table3s(scenario, other, capsys):
+    """paired.main exits 1 where its counts differ from results/table3.md's "Case by case"."""
+    assert paired.main(["--scenario", scenario, "tarl", other, "--bootstrap", "200"]) == 0, capsys.readouterr().out
+    assert "the same counts for seeds 0, 1, 2" in capsys.readouterr().out
+
+
+# ---- Every command of EXERCISES.md, at a tiny budget --------------------------------------------------
+
+def doc_commands() -> list[tuple[str, int]]:
+    """(command, the exit code its comment promises: 1 after `# exits 1`, else 0) of every line of
+    EXERCISES.md's ```bash blocks, in order."""
+    blocks = re.findall(r"```bash\n(.*?)```", (HERE / "EXERCISES.md").read_text(), re.S)
+    lines = [line.strip() for block in blocks for line in block.splitlines()]
+    return [(line, 1 if re.search(r"#\s*exits 1", line) else 0) for line in lines if line and not line.startswith("#")]
+
+
+def option(argv: list[str], flag: str, value: str | None = None, add: bool = True) -> list[str]:
+    """argv with flag's value(s) replaced by value (a flag alone if value is None), or flag added."""
+    if flag in argv:
+        i = argv.index(flag) + 1
+        j = i
+        while j < len(argv) and not argv[j].startswith("--"):
+            j += 1
+        return argv[:i] + ([] if value is None else [value]) + argv[j:]
+    return argv + [flag] + ([] if value is None else [value]) if add else argv
+
+
+def tiny(argv: list[str], tmp: Path) -> list[str]:
+    """The command at a tiny budget: 1 round of 2 cases, 300 training steps, one process (--workers 0), one
+    thread; what it would write into the repository goes to tmp. Only the budget changes, never what runs."""
+    program, args = argv[1] if argv[1] != "-m" else argv[2], argv[2:] if argv[1] != "-m" else argv[3:]
+    if program == "tarl.py":
+        training = "--load" not in args and "--algo lattice-idm" not in " ".join(args)
+        for flag, value in (("--eval-rounds", "1"), ("--eval-cases", "2"), ("--workers", "0"), ("--threads", "1")):
+            args = option(args, flag, value)
+        args = option(args, "--steps", "300") if training else args
+    elif program == "exercises.check" and "--in-vivo" in args:
+        args = option(args, "--cases", "2")
+    elif program == "exercises.bughunt":
+        args = option(option(args, "--rounds", "1"), "--cases", "2")
+    elif program == "exercises.make_data":
+        args = option(option(args, "--out", str(tmp / "data")), "--cases", "2")
+    elif program == "bench/figures.py" and args[0] == "case":
+        args = option(args, "--cases", str(int(args[args.index("--case") + 1]) + 1))
+    elif program == "bench/table3.py" and "--print-commands" not in args:
+        for flag, value in (("--steps", "300"), ("--rounds", "1"), ("--cases", "2"), ("--jobs", "1"), ("--threads", "1"),
+                            ("--seeds", "0"), ("--work", str(tmp / "grid")), ("--results", str(tmp / "hw"))):
+            args = option(args, flag, value)
+    return [program, *args]
+
+
+def run_in_process(program: str, args: list[str]) -> int:
+    """`python program args` (or `python -m program args`) here, in this process, as its exit code: the
+    interpreter's start and torch's import, ~3 s a command on a busy machine, are left out."""
+    argv, handler, threads = sys.argv, signal.getsignal(signal.SIGTERM), torch.get_num_threads()
+    try:
+        if program == "tarl.py":
+            code = experiment.main(args)
+        elif program.endswith(".py"):
+            sys.argv = [program, *args]
+            runpy.run_path(program, run_name="__main__")
+            code = 0
+        else:
+            code = importlib.import_module(program).main(args)
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else 0 if e.code is None else 1
+    finally:
+        sys.argv = argv
+        signal.signal(signal.SIGTERM, handler)
+        torch.set_num_threads(threads)
+    return code or 0
+
+
+def test_every_command_of_exercises_md_runs_and_exits_as_its_comment_says(tmp_path, monkeypatch, capsys):
+    """In document order in one folder (so that lab 6's compare finds lab 6's run), at a tiny budget. The
+    commands read results/, exercises/ and bench/ through links; what they write stays in tmp_path."""
+    for name in ("results", "exercises", "bench", "scenarios"):
+        (tmp_path / name).symlink_to(HERE / name)
+    monkeypatch.chdir(tmp_path)
+    commands, failed, times = doc_commands(), [], []
+    assert len(commands) >= 30, commands
+    for line, want in commands:
+        argv = tiny(shlex.split(line, comments=True), tmp_path)
+        t0 = time.time()
+        code = run_in_process(argv[0], argv[1:])
+        times.append(f"{time.time() - t0:5.1f} s  {line}")
+        if code != want:
+            failed.append(f"{line}\n  as {' '.join(argv)}: exit {code}, the comment says {want}\n"
+                          + capsys.readouterr().out[-3000:])
+    print("\n".join(times))  # measured, never asserted (python -m pytest -s shows them)
+    assert not failed, "\n\n".join(failed)

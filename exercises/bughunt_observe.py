@@ -37,13 +37,13 @@ def observe(ego_xy, ego_heading, ego_speed, task, zone, others, cfg) -> np.ndarr
     ego_speed [m/s]; task, zone: indices of the one-hots h1, h2; others (M, >= 4): centre x, y [m],
     speed [m/s], heading [rad]; cfg: world.EnvConfig (perception = d_max, v_norm = v_max of Eq. (27))."""
     s_sur = np.zeros((6, 2, 5))
-    rel = others[:, :2] - ego_xy
+    rel = ego_xy - others[:, :2]
     d = np.hypot(rel[:, 0], rel[:, 1])
     seen = d <= cfg.perception
     rel, d, o = rel[seen], d[seen], others[seen]
     bearing = np.arctan2(rel[:, 1], rel[:, 0])  # [rad] the direction of each vehicle from the ego
     # Eq. (28): the position angle between the ego's heading and the vehicle [deg], and its sector
-    sector, phi = sector_index(np.degrees(wrap_angle(ego_heading - bearing)))
+    sector, phi = sector_index(np.degrees(wrap_angle(bearing - ego_heading)))
     order = np.lexsort((d, sector))  # by sector, then nearest first
     sector, d, phi, o = sector[order], d[order], phi[order], o[order]
     rank = np.arange(len(sector)) - np.searchsorted(sector, sector, side="left")

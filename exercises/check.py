@@ -1,10 +1,13 @@
-"""Check an exercise:  python -m exercises.check N [--solution | --file PATH]   (N = 1..5, or bughunt)
+"""Check an exercise:  python -m exercises.check N [--solution | --file PATH] [--in-vivo]   (N = 1..5, or bughunt)
 
 Runs exercise N's checks, function by function, on the student's file exercises/exN_*.py (--solution:
 on the reference answer in exercises/solutions/; --file: on any file). The checks use values worked
 out by hand and the answers stored in exercises/data/exN.npz (make_data.py), never the project's
 code, so they still work where a course has blanked the reference. Prints what is wrong (and, where a
 known mistake fits, asks about it); exits 0 when every check passes, 1 otherwise.
+
+--in-vivo: instead, the file's functions drive the shipped roundabout TARL policy in the simulation, case
+by case against the project's stored run (in_vivo.py; it needs SUMO and torch, ~10 s).
 """
 from __future__ import annotations
 
@@ -529,8 +532,23 @@ def main(argv=None) -> int:
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--solution", action="store_true", help="check the reference solution instead")
     which.add_argument("--file", type=Path, help="check this file instead")
+    parser.add_argument("--in-vivo", action="store_true", help="drive the shipped roundabout TARL policy with the "
+                        "file's functions, case by case against the project's stored run (1-4, bughunt)")
+    parser.add_argument("--cases", type=int, default=20, help="with --in-vivo: the first CASES of the 20 stored test cases")
     args = parser.parse_args(argv)
-    result = run(args.exercise, args.file or path_of(args.exercise, args.solution))
+    if args.cases < 1:
+        parser.error("--cases must be at least 1")
+    path = args.file or path_of(args.exercise, args.solution)
+    if args.in_vivo:
+        from exercises import in_vivo
+        if args.exercise in in_vivo.NO_IN_VIVO:
+            return print(f"Exercise {args.exercise} in vivo: {in_vivo.NO_IN_VIVO[args.exercise]}") or 1
+        try:
+            module = load(path)
+        except Exception as e:  # noqa: BLE001
+            return print(f"could not import {nice(path)}: {type(e).__name__}: {e}") or 1
+        return 0 if in_vivo.run(args.exercise, module, nice(path), args.cases) else 1
+    result = run(args.exercise, path)
     print(result.report)
     return 0 if result.ok else 1
 

@@ -1,6 +1,8 @@
-"""Store the answers the checker compares with: exercises/data/exN.npz, from the project's functions.
+"""Store the answers the checker compares with: exercises/data/exN.npz, from the project's functions,
+and data/in_vivo.json, the project's own run of the in-vivo cases (in_vivo.py).
 
     python -m exercises.make_data        # from the repository's root, with tarl, world, planner in place
+    python -m exercises.make_data --out /tmp/data --cases 2    # elsewhere, a short in-vivo reference
 
 Run it once (and again if the project's reference changes: test_exercises.py says so). The checker
 reads only the stored arrays, so a course may then blank the reference bodies. Inputs are random with
@@ -8,6 +10,8 @@ fixed seeds; every function is called the way the project calls it.
 """
 from __future__ import annotations
 
+import argparse
+import json
 import math
 from dataclasses import asdict
 from pathlib import Path
@@ -157,12 +161,21 @@ def ex5() -> dict:
 BUILD = {1: ex1, 2: ex2, 3: ex3, 4: ex4, 5: ex5}
 
 
-def main():
+def main(argv=None):
+    from exercises import in_vivo
+    p = argparse.ArgumentParser(prog="python -m exercises.make_data", description=__doc__.split("\n")[0])
+    p.add_argument("--out", type=Path, default=DATA, help="where to write (default exercises/data)")
+    p.add_argument("--cases", type=int, default=in_vivo.CASES, help="test cases of the in-vivo reference")
+    args = p.parse_args(argv)
     check_constants()
-    DATA.mkdir(exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)
     for n, build in BUILD.items():
-        np.savez_compressed(DATA / f"ex{n}.npz", **build())
-        print(f"wrote {DATA / f'ex{n}.npz'}")
+        np.savez_compressed(args.out / f"ex{n}.npz", **build())
+        print(f"wrote {args.out / f'ex{n}.npz'}")
+    reference = in_vivo.reference_cases(args.cases)
+    cases = ",\n  ".join(json.dumps(case) for case in reference.pop("cases"))  # one case a line
+    (args.out / in_vivo.REFERENCE.name).write_text(json.dumps(reference)[:-1] + f', "cases": [\n  {cases}]}}\n')
+    print(f"wrote {args.out / in_vivo.REFERENCE.name}")
 
 
 if __name__ == "__main__":
