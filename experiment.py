@@ -420,6 +420,9 @@ def parse_args(argv=None):
     args.state = None
     if args.load or args.resume:
         args.state = load_checkpoint(args.load or args.out / "ckpt.pt", args.scenario, args.algo)
+        if args.resume and args.steps < max(args.state["step"], args.state["step_one"]) + 1:
+            raise SystemExit(f"--resume: the run in {args.out} is at step {args.state['step']:,} (its step 1 ends at "
+                             f"{args.state['step_one']:,}); give --steps above both")
     elif (args.out / "ckpt.pt").exists():
         raise SystemExit(f"{args.out} already holds a run: --resume to continue it, or choose another --out")
     return args

@@ -184,3 +184,14 @@ def test_short_runs_of_the_variants_update_both_agents_and_their_checkpoints_loa
     x = np.concatenate([obs, np.zeros((4, 1), np.float32)], 1)
     np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
     assert fresh.driver.timing == trainer.driver.timing and fresh.tc.imagination == trainer.tc.imagination
+
+
+def test_a_resumed_run_refuses_a_budget_it_has_already_passed(env, tmp_path):
+    trainer = tarl.Trainer(env, "sac", TrainConfig(steps=150, n_actor=15), SMALL_SAC, seed=1, out=tmp_path, **QUIET)
+    trainer.run()
+    with pytest.raises(SystemExit, match="is at step .*give --steps above both"):
+        experiment.parse_args(["--scenario", "intersection", "--algo", "sac", "--out", str(tmp_path), "--resume",
+                               "--steps", "100"])
+    args = experiment.parse_args(["--scenario", "intersection", "--algo", "sac", "--out", str(tmp_path), "--resume",
+                                  "--steps", "5000"])
+    assert args.state["step"] == trainer.step and args.steps == 5000
