@@ -210,6 +210,7 @@ def play_in_workers(jobs: list[tuple], n: int):
                         raise EOFError
                     r, episodes, error = w["conn"].recv()
                 except (EOFError, OSError):
+                    w["proc"].join(timeout=2.0)  # its pipe can close before the process is reaped
                     code = w["proc"].exitcode
                     how = f"killed by {signal.Signals(-code).name}" if code and code < 0 else f"exit code {code}"
                     raise SystemExit(f"evaluation round {r + 1} failed: its worker process died ({how}); the "
