@@ -361,6 +361,8 @@ def parse_args(argv=None):
                    "--steps 30000 --eval-rounds 2 --eval-cases 50 --out runs/lab/SCENARIO-ALGO-sSEED")
     p.add_argument("--steps", type=int, help=f"simulator steps of training (default {TrainConfig.steps:,}; Table 2: "
                    "500,000)")
+    p.add_argument("--step-one", type=int, metavar="STEPS", help="steps of Alg. 1's step 1, plain SAC, within --steps "
+                   f"(default: the share TrainConfig.sac_fraction = {TrainConfig.sac_fraction})")
     p.add_argument("--seed", type=int, default=0, help="seeds training and the evaluation rounds")
     p.add_argument("--eval-rounds", type=int, help="R of Table 3 (default 10)")
     p.add_argument("--eval-cases", type=int, help="C of Table 3: test cases per round (default 200)")
@@ -407,6 +409,9 @@ def parse_args(argv=None):
             p.error("--timing changes how a loaded actor is timed: give it --load CKPT of a learned row")
         if name in ("learned", "phased", "cap") and ROWS[args.algo].timing not in ("taker", "phased"):
             p.error(f"--timing {name} needs a timing taker: --algo {args.algo} has none")
+    if args.step_one is not None and not (0 < args.step_one < args.steps and ROWS[args.algo].step_one and not args.load):
+        p.error(f"--step-one sets step 1 of a run to train, above 0 and below --steps; --algo {args.algo} "
+                + ("has none" if not ROWS[args.algo].step_one else "has it"))
     if args.svo is not None and not 0.0 <= args.svo[0] <= args.svo[1] <= 1.0:
         p.error("--svo LOW HIGH: 0 <= LOW <= HIGH <= 1")
     if args.spawn_gap is not None and not args.spawn_gap > 0:
@@ -424,6 +429,9 @@ def parse_args(argv=None):
         if args.resume and args.steps < max(args.state["step"], args.state["step_one"]) + 1:
             raise SystemExit(f"--resume: the run in {args.out} is at step {args.state['step']:,} (its step 1 ends at "
                              f"{args.state['step_one']:,}); give --steps above both")
+        if args.resume and args.step_one not in (None, args.state["step_one"]):
+            raise SystemExit(f"--resume: the run in {args.out} has a step 1 of {args.state['step_one']:,} steps, "
+                             f"not --step-one {args.step_one:,}")
     elif (args.out / "ckpt.pt").exists():
         raise SystemExit(f"{args.out} already holds a run: --resume to continue it, or choose another --out")
     return args
@@ -448,8 +456,9 @@ def main(argv=None):
     env = DrivingEnv(cfg, gui=args.gui)
     try:
         if args.algo != "lattice-idm":
-            trainer = make_trainer(args.algo, env, TrainConfig(steps=args.steps, timing=timing), args.seed, args.out,
-                                   state=args.state)
+            share = TrainConfig.sac_fraction if args.step_one is None else args.step_one / args.steps
+            trainer = make_trainer(args.algo, env, TrainConfig(steps=args.steps, sac_fraction=share, timing=timing),
+                                   args.seed, args.out, state=args.state)
             if args.state:
                 trainer.load(args.state, resume=args.resume)
             if not args.load:

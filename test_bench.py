@@ -49,11 +49,14 @@ def test_table3_averages_over_seeds_keeps_budgets_apart_and_finds_odd_starts(tmp
         ("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.8, "abc")]),
         ("roundabout-sac-s1", "roundabout", 1, [_row("sac", 1, 0.9, "def")]),
         ("roundabout-tarl-s1", "roundabout", 1, [_row("tarl", 1, 0.7, "dxf"), _row("lattice-idm", 1, 0.5, "def")]),
-        ("roundabout-tarl-s0-500k", "roundabout", 0, [_row("tarl", 0, 0.95, "abc")])])
+        ("roundabout-tarl-s0-500k", "roundabout", 0, [_row("tarl", 0, 0.95, "abc")]),
+        ("roundabout-tarl-fixed-t-s0-67k-step1-40k", "roundabout", 0, [_row("tarl-fixed-t", 0, 0.6, "abc")])])
     assert table3.cell_name("roundabout", "tarl", 0, 500_000) == "roundabout-tarl-s0-500k"
     assert table3.cell_name("roundabout", "tarl", 0, table3.STEPS) == "roundabout-tarl-s0"
-    assert set(found) == {table3.STEPS, 500_000}
-    mean, seed_std, round_std, n = table3.over_seeds(found[table3.STEPS][("roundabout", "sac")], "success_rate")
+    assert table3.cell_name("roundabout", "tarl-fixed-t", 0, 67_000, 40_000) == "roundabout-tarl-fixed-t-s0-67k-step1-40k"
+    assert table3.cell_name("roundabout", "tarl", 0, table3.STEPS, 40_000) == "roundabout-tarl-s0-100k-step1-40k"
+    assert table3.by_budget(found) == [(67_000, 40_000), table3.DEFAULT, (500_000, None)]
+    mean, seed_std, round_std, n = table3.over_seeds(found[table3.DEFAULT][("roundabout", "sac")], "success_rate")
     assert (round(mean, 6), round(seed_std, 6), round_std, n) == (0.85, 0.05, 0.01, 2)
     # seed 1: TARL's second case began differently from SAC's and Lattice-IDM's
     assert any("seed 1" in line and "TARL 1" in line for line in table3.same_cases(found))
@@ -63,6 +66,7 @@ def test_table3_averages_over_seeds_keeps_budgets_apart_and_finds_odd_starts(tmp
     assert "| 100,000 | roundabout | SAC | 0.800 (0.200 / 0.000), 20.0 s | 0.900 (0.100 / 0.000), 20.0 s |" in seeds
     assert "| 100,000 | roundabout | Lattice-IDM | - | 0.500 (0.500 / 0.000), 20.0 s |" in seeds
     assert "| 500,000 | roundabout | TARL | 0.950 (0.050 / 0.000), 20.0 s |" in seeds
+    assert "| 67,000 (step 1: 40,000) | roundabout | TARL, T = 2 fixed | 0.600 (0.400 / 0.000), 20.0 s |" in seeds
 
 
 def test_table3_rewrites_only_the_readme_blocks_between_its_markers(tmp_path):
@@ -84,17 +88,20 @@ def test_table3_rewrites_only_the_readme_blocks_between_its_markers(tmp_path):
 
 
 def test_table3_commands_resume_a_cell_with_a_checkpoint(tmp_path):
-    args = table3.argparse.Namespace(work=tmp_path, steps=500_000, rounds=10, cases=200)
+    args = table3.argparse.Namespace(work=tmp_path, steps=500_000, step_one=None, rounds=10, cases=200)
     cmd = table3.command("roundabout", "tarl", 0, args, 1)
     assert "--resume" not in cmd and cmd[cmd.index("--threads") + 1] == "1" and cmd[cmd.index("--eval-rows") + 1] == "all"
     (tmp_path / "roundabout-tarl-s0-500k").mkdir()
     (tmp_path / "roundabout-tarl-s0-500k" / "ckpt.pt").write_bytes(b"")
     assert table3.command("roundabout", "tarl", 0, args, 1)[-1] == "--resume"
+    args.steps, args.step_one = 67_000, 40_000  # the ablations with TARL's real-loop budget
+    cmd = table3.command("roundabout", "tarl-fixed-t", 0, args, 1)
+    assert cmd[cmd.index("--step-one") + 1] == "40000" and str(tmp_path / "roundabout-tarl-fixed-t-s0-67k-step1-40k") in cmd
     assert [c[0] for c in table3.cells(["tarl"], [0], ["roundabout"])] == ["roundabout"]
 
 
 def test_table3_a_cell_is_run_by_one_grid_only_and_never_again_once_done(tmp_path):
-    args = table3.argparse.Namespace(work=tmp_path / "grid", results=tmp_path / "results", steps=table3.STEPS)
+    args = table3.argparse.Namespace(work=tmp_path / "grid", results=tmp_path / "results", steps=table3.STEPS, step_one=None)
     cell = ("intersection", "sac", 1)
     first = table3.claim(cell, args)
     assert first is not None and first[0] == tmp_path / "grid" / "intersection-sac-s1"

@@ -195,3 +195,19 @@ def test_a_resumed_run_refuses_a_budget_it_has_already_passed(env, tmp_path):
     args = experiment.parse_args(["--scenario", "intersection", "--algo", "sac", "--out", str(tmp_path), "--resume",
                                   "--steps", "5000"])
     assert args.state["step"] == trainer.step and args.steps == 5000
+
+
+def test_step_one_sets_the_length_of_step_1_and_a_resumed_run_keeps_its_own(env, tmp_path):
+    """--step-one (the budget-equalised ablations of RESULTS.md): Alg. 1's step 1 runs that many steps, then on to
+    its episode's end; a resume with another length is refused, and rows without a step 1 refuse it."""
+    trainer = tarl.Trainer(env, "tarl-fixed-t", TrainConfig(steps=900, sac_fraction=100 / 900, n_actor=15), SMALL_SAC,
+                           seed=1, out=tmp_path, timing="fixed", **QUIET)
+    trainer.run()
+    assert 100 <= trainer.step_one < 900 and trainer.sac_actor is not None
+    base = ["--scenario", "intersection", "--algo", "tarl-fixed-t", "--out", str(tmp_path), "--resume", "--steps", "1000"]
+    with pytest.raises(SystemExit, match="has a step 1 of .* not --step-one 200"):
+        experiment.parse_args([*base, "--step-one", "200"])
+    assert experiment.parse_args([*base, "--step-one", str(trainer.step_one)]).state["step_one"] == trainer.step_one
+    for algo, steps in (("sac", "400"), ("tarl-fixed-t", "100")):
+        with pytest.raises(SystemExit):  # no step 1; a step 1 as long as the run
+            experiment.parse_args(["--algo", algo, "--steps", steps, "--step-one", "100", "--out", str(tmp_path / "x")])

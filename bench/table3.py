@@ -52,11 +52,24 @@ PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.73
 
 
 STEPS = tarl.TrainConfig.steps  # the default budget of every learned row
+DEFAULT = (STEPS, None)  # a budget: (training steps, steps of Alg. 1's step 1 or None for TrainConfig.sac_fraction's)
 
 
-def cell_name(scenario, algo, seed, steps) -> str:
-    """S-A-sK; another budget than the default is in the name: S-A-sK-500k (the paper's, Table 2)."""
-    return f"{scenario}-{algo}-s{seed}" + (f"-{steps // 1000}k" if steps != STEPS else "")
+def cell_name(scenario, algo, seed, steps, step_one=None) -> str:
+    """S-A-sK; another budget than the default is in the name: S-A-sK-500k (the paper's, Table 2), and a step 1 of
+    another length after it: S-A-sK-67k-step1-40k (the ablations with TARL's real-loop budget, RESULTS.md)."""
+    return (f"{scenario}-{algo}-s{seed}" + (f"-{steps // 1000}k" if (steps, step_one) != DEFAULT else "")
+            + (f"-step1-{step_one // 1000}k" if step_one is not None else ""))
+
+
+def budget_text(budget) -> str:
+    steps, step_one = budget
+    return f"{steps:,}" + (f" (step 1: {step_one:,})" if step_one is not None else "")
+
+
+def by_budget(found: dict) -> list:
+    """The budgets of `found` in order: steps, then step 1."""
+    return sorted(found, key=lambda b: (b[0], b[1] or 0))
 
 
 def cells(algos, seeds, scenarios=SCENARIOS):
@@ -66,17 +79,18 @@ def cells(algos, seeds, scenarios=SCENARIOS):
 
 def command(scenario, algo, seed, args, threads) -> list[str]:
     """The cell's command, run from the repository's root (paths relative to it where they can be)."""
-    out = args.work / cell_name(scenario, algo, seed, args.steps)
+    out = args.work / cell_name(scenario, algo, seed, args.steps, args.step_one)
     shown = out.relative_to(ROOT) if out.is_relative_to(ROOT) else out
     cmd = ["python", "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--steps", str(args.steps),
            "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", str(shown),
            "--eval-rows", "all" if algo == "tarl" else "trained", "--threads", str(threads), "--workers", str(threads)]
+    cmd += ["--step-one", str(args.step_one)] if args.step_one is not None else []
     return cmd + ["--resume"] * (out / "ckpt.pt").exists()
 
 
 def publish(scenario, algo, seed, args):
     """Copy a finished cell's small files to results/runs and commit them (--commit)."""
-    name = cell_name(scenario, algo, seed, args.steps)
+    name = cell_name(scenario, algo, seed, args.steps, args.step_one)
     src, dst = args.work / name, args.results / "runs" / name
     dst.mkdir(parents=True, exist_ok=True)
     for file in ("train_log.csv", "constraint_log.csv", "policy.pt"):  # ~1 MB each policy: every seed's
@@ -88,7 +102,8 @@ def publish(scenario, algo, seed, args):
         for attempt in range(5):  # another git command may hold the index for a moment
             add = subprocess.run(["git", "-C", str(ROOT), "add", str(dst), str(args.results / "table3.md")])
             done = add.returncode == 0 and subprocess.run(
-                ["git", "-C", str(ROOT), "commit", "-q", "-m", f"Table 3 grid: {algo} on the {scenario}, seed {seed}",
+                ["git", "-C", str(ROOT), "commit", "-q", "-m", f"Table 3 grid: {algo} on the {scenario}, seed {seed}"
+                 + (f", {budget_text((args.steps, args.step_one))} steps" if (args.steps, args.step_one) != DEFAULT else ""),
                  "--", str(dst), str(args.results / "table3.md")]).returncode == 0
             if done:
                 break
@@ -98,7 +113,7 @@ def publish(scenario, algo, seed, args):
 def claim(cell, args):
     """The cell's run directory, locked for this process (the lock goes when it ends), or None if the cell is done
     or another grid process runs it: several grids on one machine or a shared disk share the cells out."""
-    name = cell_name(*cell, args.steps)
+    name = cell_name(*cell, args.steps, args.step_one)
     out = args.work / name
     out.mkdir(parents=True, exist_ok=True)
     lock = open(out / "lock", "w")
@@ -139,11 +154,12 @@ def run_grid(todo, args):
 
 
 def load(results: Path) -> dict:
-    """budget -> (scenario, algo) -> {seed: the row of eval.json}; the budget is the cell's (its name)."""
+    """budget -> (scenario, algo) -> {seed: the row of eval.json}; the budget, (steps, step 1), is the cell's
+    (its name)."""
     found = {}
     for path in sorted((results / "runs").glob("*/eval.json")):
-        data, suffix = json.loads(path.read_text()), re.search(r"-(\d+)k$", path.parent.name)
-        budget = int(suffix[1]) * 1000 if suffix else STEPS
+        data, suffix = json.loads(path.read_text()), re.search(r"-(\d+)k(?:-step1-(\d+)k)?$", path.parent.name)
+        budget = (int(suffix[1]) * 1000, suffix[2] and int(suffix[2]) * 1000) if suffix else DEFAULT
         for row in data["rows"]:
             found.setdefault(budget, {}).setdefault((data["scenario"], row["algo"]), {})[data["seed"]] = row
     return found
@@ -176,7 +192,7 @@ def same_cases(found: dict) -> list[str]:
         common = [Counter(case).most_common(1)[0][0] for case in zip(*rows.values())]
         odd = {algo: sum(a != b for a, b in zip(s, common)) for algo, s in rows.items()}
         odd = ", ".join(f"{NAMES[algo]} {n}" for algo, n in odd.items() if n)
-        lines.append(f"- {scenario}, seed {seed}" + (f", {budget:,} steps" if budget != STEPS else "") +
+        lines.append(f"- {scenario}, seed {seed}" + (f", {budget_text(budget)} steps" if budget != DEFAULT else "") +
                      f": {len(rows)} rows, {len(common)} cases; " + (f"cases that began differently: {odd}" if odd
                                                                       else "every row met the same cases"))
     return lines
@@ -187,14 +203,14 @@ def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> lis
     failed (the README's "What the timing adds")."""
     lines = ["| budget | scenario | seed | TARL against | only TARL arrives: the other collides / times out | "
              "only the other arrives: TARL collides / times out |", "|---|---|---|---|---|---|"]
-    for budget, scenario, algo in [(b, s, a) for b in sorted(found) for s in SCENARIOS for a in against]:
+    for budget, scenario, algo in [(b, s, a) for b in by_budget(found) for s in SCENARIOS for a in against]:
         for seed, row in sorted(found[budget].get((scenario, algo), {}).items()):
             tarl_row = found[budget].get((scenario, "tarl"), {}).get(seed)
             if tarl_row is None:
                 continue
             mine = {(c["round"], c["case"]): c["outcome"] for c in tarl_row["cases"]}
             pairs = Counter((mine[c["round"], c["case"]], c["outcome"]) for c in row["cases"] if (c["round"], c["case"]) in mine)
-            lines.append(f"| {budget:,} | {scenario} | {seed} | {NAMES[algo]} | {pairs['arrival', 'collision']} / "
+            lines.append(f"| {budget_text(budget)} | {scenario} | {seed} | {NAMES[algo]} | {pairs['arrival', 'collision']} / "
                          f"{pairs['arrival', 'timeout']} | {pairs['collision', 'arrival']} / {pairs['timeout', 'arrival']} |")
     return lines
 
@@ -213,14 +229,14 @@ def each_seed(found: dict) -> list[str]:
     """Per budget and scenario, every row's success (collisions / timeouts) and crossing time seed by seed: the
     numbers behind each mean +- std over seeds, which the README's words quote."""
     lines = []
-    for budget in sorted(found):
+    for budget in by_budget(found):
         seeds = sorted({seed for rows in found[budget].values() for seed in rows})
         lines += ["| budget | scenario | model | " + " | ".join(f"seed {s}" for s in seeds) + " |",
                   "|---|---|---|" + "---|" * len(seeds)]
         for scenario, algo in [(s, a) for s in SCENARIOS for a in (*TABLE_ROWS, *ABLATIONS)]:
             rows = found[budget].get((scenario, algo), {})
             if rows:
-                lines.append(f"| {budget:,} | {scenario} | {NAMES[algo]} | " + " | ".join(
+                lines.append(f"| {budget_text(budget)} | {scenario} | {NAMES[algo]} | " + " | ".join(
                     "-" if s not in rows else "{:.3f} ({:.3f} / {:.3f}), {:.1f} s".format(
                         *(rows[s][k]["mean"] for k in RATES),
                         rows[s]["crossing_time"]["mean"] or float("nan")) for s in seeds) + " |")
@@ -240,7 +256,7 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
     for scenario in SCENARIOS:
         lines += [f"**{scenario.capitalize()}**", "", "| model | seeds | success | collision | timeout | crossing [s] |"
                   + " paper success | paper crossing [s] |" * paper, "|---|---|---|---|---|---|" + "---|---|" * paper]
-        table = {algo: found.get(STEPS, {}).get((scenario, algo)) for algo in algos}
+        table = {algo: found.get(DEFAULT, {}).get((scenario, algo)) for algo in algos}
         table = {algo: {k: over_seeds(rows, k) for k in (*RATES, "crossing_time")}
                  | {"seeds": len(rows)} for algo, rows in table.items() if rows}
         best = max((stats["success_rate"] or (0,))[0] for stats in table.values()) if table else None
@@ -265,7 +281,7 @@ def write_readme(found: dict, readme: Path):
             return "-" if stats is None else f"{stats[0]:.{digits}f}" + f" +- {stats[1]:.{digits}f}" * (stats[3] > 1)
         lines = []
         for scenario in SCENARIOS:
-            table = {algo: found.get(STEPS, {}).get((scenario, algo)) for algo in algos}
+            table = {algo: found.get(DEFAULT, {}).get((scenario, algo)) for algo in algos}
             table = {algo: {k: over_seeds(rows, k) for k in (*RATES, "crossing_time")} | {"seeds": len(rows)}
                      for algo, rows in table.items() if rows}
             seeds = {stats["seeds"] for stats in table.values()}
@@ -306,10 +322,11 @@ def collect(args):
              f"Each cell: mean +- std over seeds of each seed's mean over {args.rounds} rounds x {args.cases} test cases; "
              "in brackets the mean per-round std (the paper's +-) and the number of seeds. Paper: Table 3 "
              f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from results/runs/*/eval.json.", ""]
-    for budget, scenario in [(STEPS, s) for s in SCENARIOS] + [(b, s) for b in sorted(found) if b != STEPS for s in SCENARIOS]:
-        if budget != STEPS and not any(key[0] == scenario for key in found[budget]):
+    for budget, scenario in [(DEFAULT, s) for s in SCENARIOS] + [(b, s) for b in by_budget(found) if b != DEFAULT
+                                                                  for s in SCENARIOS]:
+        if budget != DEFAULT and not any(key[0] == scenario for key in found[budget]):
             continue
-        title = scenario if budget == STEPS else f"{scenario}, at {budget:,} training steps"
+        title = scenario if budget == DEFAULT else f"{scenario}, at {budget_text(budget)} training steps"
         lines += [f"## {title}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
                   "at 60 s [s] | paper success | paper crossing [s] |", "|---|---|---|---|---|---|---|---|"]
         for algo in (*TABLE_ROWS, *ABLATIONS):
@@ -342,6 +359,8 @@ def main():
     p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
     p.add_argument("--steps", type=int, default=STEPS, help="training steps of every learned row (another budget's "
                    "cells are S-A-sK-500k, reported apart)")
+    p.add_argument("--step-one", type=int, help="steps of Alg. 1's step 1 in every cell (default: the share "
+                   f"TrainConfig.sac_fraction = {tarl.TrainConfig.sac_fraction} of --steps); cells S-A-sK-67k-step1-40k")
     p.add_argument("--rounds", type=int, default=10)
     p.add_argument("--cases", type=int, default=200)
     p.add_argument("--jobs", type=int, default=2, help="cells side by side")
@@ -358,11 +377,15 @@ def main():
     args = p.parse_args()
     if args.jobs < 1 or (args.threads is not None and args.threads < 1):
         p.error("--jobs and --threads must be at least 1")
+    if args.step_one is not None and not 0 < args.step_one < args.steps:
+        p.error("--step-one must be above 0 and below --steps")
+    if args.step_one is not None and (plain := [a for a in args.algos if not experiment.ROWS[a].step_one]):
+        p.error(f"--step-one: {', '.join(plain)} have no step 1")
     if args.collect_only:
         collect(args)
         return print((args.results / "table3.md").read_text())
     todo = [c for c in cells(args.algos, args.seeds, args.scenarios)
-            if not (args.results / "runs" / cell_name(*c, args.steps) / "eval.json").exists()]
+            if not (args.results / "runs" / cell_name(*c, args.steps, args.step_one) / "eval.json").exists()]
     if args.print_commands:
         return print("\n".join(" ".join(command(*c, args, args.threads or 2)) for c in todo))
     args.threads = args.threads or max(2 // args.jobs, 1)
