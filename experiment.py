@@ -46,6 +46,7 @@ class Row:
     step_one: bool  # Algorithm 1's step 1 (plain SAC for TrainConfig.sac_fraction of the steps) comes first
     trainer: type | None  # tarl.Trainer or a trainer of baselines.py; None: nothing to train
     imagination: str = "phased"  # what its timing imagination executes (TrainConfig.imagination)
+    timing_updates: int = 1  # its timing taker's updates per decision (TrainConfig.timing_updates)
 
 
 ROWS = {
@@ -54,6 +55,7 @@ ROWS = {
     "tarl-random-t": Row("TARL, T random", "random", True, tarl.Trainer),  # ablation: no timing taker
     "tarl-consistent": Row("TARL, phased real loop", "phased", True, tarl.Trainer),  # beyond the paper (PAPER.md)
     "tarl-held": Row("TARL, held imagination", "taker", True, tarl.Trainer, "held"),  # beyond the paper (PAPER.md)
+    "tarl-utd": Row("TARL, 8 timing updates", "taker", True, tarl.Trainer, timing_updates=8),  # beyond the paper
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),
@@ -70,7 +72,7 @@ def make_trainer(algo: str, env: DrivingEnv, tc: TrainConfig, seed: int = 0, out
     networks' sizes the trainer takes."""
     row = ROWS[algo]
     sac_cfg = SACConfig(**state["config"]["sac"]) if state else SACConfig()
-    tc = replace(tc, imagination=row.imagination)
+    tc = replace(tc, imagination=row.imagination, timing_updates=row.timing_updates)
     return row.trainer(env, algo, tc, sac_cfg, seed, out, log, timing=row.timing, step_one=row.step_one)
 
 

@@ -418,6 +418,8 @@ class TrainConfig:
     # What a decision of the timing imagination executes: "phased", Eq. (7) (the paper's); "held", beyond the
     # paper (PAPER.md, 6): beta(T) of Eq. (11) for T steps with a fresh a_t each step, as the real loop does
     imagination: str = "phased"
+    timing_updates: int = 1  # updates of the timing taker per decision: 1 in Alg. 1 (lines 13-14); more, beyond the
+    #                          paper (PAPER.md, 6): 8 gives it about as many updates as the actor gets
 
 
 LOG_HEADER = ["step", "loop", "episode_return", "success", "collision", "timeout", "crossing_time", "mean_beta"]
@@ -570,8 +572,9 @@ class Trainer:
             # drawn afresh from the actor whenever the transition is used (timing_batch, PAPER.md, note 8).
             self.D_T.add(x, T, discounted_sum(rewards, gamma), np.append(s2, np.float32(0.0)), gamma ** len(rewards),
                          terminated)
-            self.learn(self.timing_taker, self.timing_batch, len(self.D_T) >= self.tc.timing_learning_starts,
-                       "timing")  # lines 13-14
+            for _ in range(self.tc.timing_updates):  # lines 13-14
+                self.learn(self.timing_taker, self.timing_batch, len(self.D_T) >= self.tc.timing_learning_starts,
+                           "timing")
             n += 1
 
     def columns(self, info: dict) -> dict:

@@ -219,6 +219,11 @@ def test_the_case_by_case_counts_are_table3s(scenario, other, capsys):
     assert "the same counts for seeds 0, 1, 2" in capsys.readouterr().out
 
 
+def test_the_labels_it_reads_are_the_rows_labels():
+    """paired finds a row in results/table3.md by the label experiment.ROWS gives it."""
+    assert paired.LABELS == {algo: row.label for algo, row in experiment.ROWS.items()}
+
+
 # ---- Every command of EXERCISES.md, at a tiny budget --------------------------------------------------
 
 def doc_commands() -> list[tuple[str, int]]:

@@ -167,15 +167,18 @@ def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypat
     assert " 100 steps/s, ETA  13.0 min" in lines[-1]  # (100,000 - 22,000) / 100 s
 
 
-@pytest.mark.parametrize("algo", ["tarl-consistent", "tarl-held"])
+@pytest.mark.parametrize("algo", ["tarl-consistent", "tarl-held", "tarl-utd"])
 def test_short_runs_of_the_variants_update_both_agents_and_their_checkpoints_load(algo, env, tmp_path):
-    """The two variants beyond the paper (PAPER.md, 6), as experiment.ROWS builds them: every phase runs, both
+    """The variants beyond the paper (PAPER.md, 6), as experiment.ROWS builds them: every phase runs, both
     agents update, and the checkpoint acts the same in a fresh trainer with the variant's own loops."""
     small = dict(config=dict(sac=vars(SMALL_SAC)))  # make_trainer takes the networks' sizes from a checkpoint's
     trainer = experiment.make_trainer(algo, env, SMALL, seed=1, out=tmp_path, state=small, **QUIET)
     assert trainer.driver.timing == experiment.ROWS[algo].timing and trainer.tc.imagination == experiment.ROWS[algo].imagination
     trainer.run()
     assert trainer.updates["actor"] > 50 and trainer.updates["timing"] > 5
+    # lines 13-14 after each decision once D_T holds timing_learning_starts: timing_updates updates each
+    decisions = len(trainer.D_T) - trainer.tc.timing_learning_starts + 1
+    assert trainer.updates["timing"] == experiment.ROWS[algo].timing_updates * decisions == trainer.tc.timing_updates * decisions
     state = experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", algo)
     assert state["config"]["train"]["imagination"] == experiment.ROWS[algo].imagination
     fresh = experiment.make_trainer(algo, env, SMALL, seed=2, state=state, **QUIET)

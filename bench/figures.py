@@ -70,7 +70,7 @@ plt.rcParams.update({"font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11
 ORDER = tuple(a for a in ROWS + ABLATIONS if a != "lattice-idm")  # the learned rows of Table 3, in its order
 COLORS = {"tarl": "#d62728", "sac": "#1f77b4", "sac-lattice": "#2ca02c", "sac-lag": "#9467bd", "sac-pid": "#8c564b",
           "ppo-lag": "#e377c2", "cpo": "#7f7f7f", "tarl-fixed-t": "#ff7f0e", "tarl-random-t": "#17becf",
-          "tarl-consistent": "#bcbd22", "tarl-held": "#aec7e8"}
+          "tarl-consistent": "#bcbd22", "tarl-held": "#aec7e8", "tarl-utd": "#ff9896"}
 # Sec. 5.5 of the paper: mean 1 - beta over all steps, within 3 s and 1 s before a collision
 PAPER_BETA_MINUS = {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
 RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)(?:-(?P<budget>\d+k))?$")  # bench/table3.py
