@@ -1,5 +1,6 @@
 """The speed benchmark runs end to end (a smoke test: no timing is asserted, the machine is shared)."""
 import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -129,3 +130,17 @@ def test_table3_counts_case_by_case_where_only_one_of_two_arrives(tmp_path):
     assert "| 100,000 | roundabout | 0 | TARL, T = 2 fixed | 1 / 1 | 1 / 1 |" in lines
     assert "| 100,000 | roundabout | 0 | Lattice-IDM | 0 / 3 | 0 / 0 |" in lines
     assert len(lines) == 4  # the header, its rule and the two comparisons
+
+
+def test_table3_commits_just_the_files_it_is_given(tmp_path, monkeypatch):
+    """The commit of a finished cell (bench/table3.py and bench/retime.py): those files, nothing else staged."""
+    git = lambda *a: subprocess.run(["git", "-C", str(tmp_path), *a], capture_output=True, text=True, check=True).stdout  # noqa: E731
+    git("init", "-q")
+    git("config", "user.email", "t@t")
+    git("config", "user.name", "t")
+    (tmp_path / "cell.json").write_text("{}")
+    (tmp_path / "other.txt").write_text("not this")
+    monkeypatch.setattr(table3, "ROOT", tmp_path)
+    table3.commit([tmp_path / "cell.json"], "Table 3 grid: a cell")
+    assert git("log", "--format=%s") == "Table 3 grid: a cell\n"
+    assert git("show", "--name-only", "--format=") == "cell.json\n" and "?? other.txt" in git("status", "--short")

@@ -99,15 +99,17 @@ def publish(scenario, algo, seed, args):
     shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
     collect(args)
     if args.commit:
-        for attempt in range(5):  # another git command may hold the index for a moment
-            add = subprocess.run(["git", "-C", str(ROOT), "add", str(dst), str(args.results / "table3.md")])
-            done = add.returncode == 0 and subprocess.run(
-                ["git", "-C", str(ROOT), "commit", "-q", "-m", f"Table 3 grid: {algo} on the {scenario}, seed {seed}"
-                 + (f", {budget_text((args.steps, args.step_one))} steps" if (args.steps, args.step_one) != DEFAULT else ""),
-                 "--", str(dst), str(args.results / "table3.md")]).returncode == 0
-            if done:
-                break
-            time.sleep(5)
+        commit([dst, args.results / "table3.md"], f"Table 3 grid: {algo} on the {scenario}, seed {seed}"
+               + (f", {budget_text((args.steps, args.step_one))} steps" if (args.steps, args.step_one) != DEFAULT else ""))
+
+
+def commit(files: list[Path], message: str):
+    """git add and commit just these files; retried, since another grid's git command may hold the index."""
+    for attempt in range(5):
+        if subprocess.run(["git", "-C", str(ROOT), "add", *map(str, files)]).returncode == 0 and subprocess.run(
+                ["git", "-C", str(ROOT), "commit", "-q", "-m", message, "--", *map(str, files)]).returncode == 0:
+            return
+        time.sleep(5)
 
 
 def claim(cell, args):
