@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import timing_probe as tp  # noqa: E402
@@ -82,3 +83,29 @@ def test_probe_end_to_end_writes_the_report(tmp_path):
     tp.report(tmp_path, log=lambda *a: None)
     text = (tmp_path / "summary.md").read_text()
     assert "## intersection" in text and "Spearman" in text and (tmp_path / "ranking.png").stat().st_size > 0
+
+
+def test_the_critic_is_read_from_a_checkpoint_of_the_shipped_policies_only(world, tmp_path):
+    """--critic CKPT: the states of the shipped policies with their timing taker's min Q(s, a, T), no branch
+    played; a checkpoint whose policies differ is refused. Here a ckpt.pt of the shipped policies and a fresh
+    critic (policy.pt has none)."""
+    env, trainer, *_ = world
+    trainer.out = tmp_path
+    trainer.save()
+    res = tp.probe("roundabout", cases=1, every=1000, crash_search=1, crash_cases=0, crash_every=5, t_max=2,
+                   critic=tmp_path / "ckpt.pt")
+    assert res["branches"] == [] and len(res["states"][0]["taker_q"]) == trainer.tc.timing.t_max
+    res["branches"] = [dict(case=0, k=0, kind="regular", loop=lp, T=T, disc=float(T), outcome="arrival")
+                       for lp in tp.LOOPS[:2] for T in (1, 2)]
+    text = "\n".join(tp.critic_lines(res))
+    assert "| 2 | " in text and "best, imagination" in text and "before collisions" not in text
+    weight = next(trainer.actor.policy.parameters())
+    shipped = weight.detach().clone()
+    with torch.no_grad():
+        weight.add_(1.0)
+    trainer.save()
+    with torch.no_grad():
+        weight.copy_(shipped)  # the module's shipped trainer, as it was
+    trainer.out = None
+    with pytest.raises(SystemExit, match="its actor is not the shipped"):
+        tp.probe("roundabout", 1, 1000, 1, 0, 5, t_max=2, critic=tmp_path / "ckpt.pt")

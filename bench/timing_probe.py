@@ -26,6 +26,8 @@ observation must equal the recorded one bit for bit, and the "original" branch m
     python bench/timing_probe.py --scenario both          # the defaults: 13 min beside two training runs
     python bench/timing_probe.py --scenario roundabout --cases 20 --every 10
     python bench/timing_probe.py --report                 # summary.md and ranking.png from the JSONs
+    python bench/timing_probe.py --scenario intersection --critic runs/critic/intersection-tarl-s0/ckpt.pt
+                                                          # and the timing taker's Q(s, a, T) at the same states
 
 Writes results/timing_probe/{scenario}.json (every branch), summary.md and ranking.png (both scenarios'
 JSONs, whichever exist).
@@ -131,11 +133,19 @@ def branch_record(res: dict, **keys) -> dict:
 
 
 def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases: int, crash_every: int,
-          t_max: int | None = None, log=print) -> dict:
-    """Every branch of every state of `scenario`, with the wall time and the settings."""
+          t_max: int | None = None, log=print, critic: Path | None = None) -> dict:
+    """Every branch of every state of `scenario`, with the wall time and the settings. critic: a ckpt.pt of the
+    shipped run (policy.pt holds no critic): the states alone, with its timing taker's Q(s, a, T), no branch."""
     t0, env = time.time(), tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
     try:
         trainer = load_tarl(env, scenario)
+        if critic is not None:
+            full = load_tarl(env, scenario, critic)
+            for net in ("actor", "timing_taker"):  # the same policies: the states are the shipped run's
+                same = zip(getattr(full, net).policy.state_dict().values(), getattr(trainer, net).policy.state_dict().values())
+                if not all(torch.equal(a, b) for a, b in same):
+                    raise SystemExit(f"{critic}: its {net} is not the shipped policy.pt's")
+            trainer = full
         t_max, cfg = t_max or trainer.driver.timing_cfg.t_max, env.cfg
         with tempfile.TemporaryDirectory() as folder:
             recorded = env.record_cases(experiment.test_seed(0, 0), max(cases, crash_search), folder)
@@ -153,10 +163,15 @@ def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases:
                 obs = restore(env, trainer, recorded[c], ep, k)
                 a = trainer.actor.act(obs, deterministic=True)
                 x = torch.as_tensor(tarl.timing_input(obs, a, cfg))[None]
-                pi = trainer.timing_taker.timing_distribution(x)[0][0].detach().numpy()
+                with torch.no_grad():
+                    pi = trainer.timing_taker.timing_distribution(x)[0][0].numpy()
+                    q = trainer.timing_taker.critic(x).amin(0)[0].numpy()  # min of the twin Q(s, a, T), Eq. (9)
                 out["states"].append(dict(case=c, k=k, kind=kind, episode=ep["outcome"],
                                           episode_steps=len(ep["actions"]), taker_T=int(pi.argmax()) + 1,
-                                          taker_pi=pi.round(4).tolist()))
+                                          taker_pi=pi.round(4).tolist()) | ({} if critic is None else
+                                                                            dict(taker_q=q.round(4).tolist())))
+                if critic is not None:
+                    continue
                 same = drive(env, trainer, obs)  # the control: TARL's own continuation
                 assert (same["outcome"], same["rewards"]) == (ep["outcome"], ep["rewards"][k:]), \
                     f"case {c}, step {k}: the restored state does not continue as the recorded episode"
@@ -169,6 +184,7 @@ def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases:
                     el = time.time() - t1
                     log(f"  {scenario}: state {i + 1}/{len(states)} (case {c}, step {k}, {kind}) {el:.0f} s, "
                         f"ETA {el / (i + 1) * (len(states) - i - 1):.0f} s")
+            out["alpha"] = float(trainer.timing_taker.log_alpha.detach().exp())
             for pair in (LOOPS[:2], LOOPS[2:]):  # T = 1: beta = 1 with a fresh a_t in both semantics
                 for b1, b2 in zip(*([b for b in out["branches"] if b["T"] == 1 and b["loop"] == lp] for lp in pair)):
                     assert (b1["outcome"], b1["ret"]) == (b2["outcome"], b2["ret"]), "T = 1: the two loops differ"
@@ -273,7 +289,41 @@ def markdown(results: list[dict]) -> str:
                 f"{r['arrival']:.2f} / {r['collision']:.2f}; {r['disc']:.1f}" for r in (crash[lp][T - 1] for lp in LOOPS))
                 + " |" for T in range(1, n_t + 1)]
             lines.append("")
+        lines += critic_lines(res)
     return "\n".join(lines)
+
+
+def critic_lines(res: dict) -> list[str]:
+    """What the timing taker's critic predicts for each T, beside what each T led to from the same states: is its
+    ranking of T the measured one, and is it too optimistic where T decides (before collisions)?"""
+    if "taker_q" not in res["states"][0]:
+        return []
+    n_t, kinds = res["t_max"], ((None, "all states"), ("regular", "regular states"), ("crash", "before collisions"))
+    disc = {(b["case"], b["k"], b["loop"], b["T"]): b["disc"] for b in res["branches"]}
+    lines = [f"### The timing taker's critic, from the same states (alpha = {res.get('alpha', float('nan')):.3f})", "",
+             "min(Q1, Q2)(s, a, T) of Eq. (9) at each state, beside the measured discounted return of one decision "
+             "with T then TARL's driver (imagination: Eq. (7); real: beta(T)). Q's own continuation is more "
+             "imagination decisions, so its level may differ; its ranking of T is what the taker acts on. "
+             "Spearman: per state, Q(s, a, .) against the measured returns over T, the mean over states.", ""]
+    for kind, title in kinds:
+        states = [st for st in res["states"] if kind in (None, st["kind"])]
+        if not states:
+            continue
+        q = np.array([st["taker_q"][:n_t] for st in states])
+        m = {lp: np.array([[disc[st["case"], st["k"], lp, T] for T in range(1, n_t + 1)] for st in states])
+             for lp in LOOPS[:2]}
+        rho = {lp: np.nanmean([spearman(qi, mi) for qi, mi in zip(q, m[lp])]) for lp in m}
+        best = {lp: np.bincount(m[lp].argmax(1), minlength=n_t) / len(states) for lp in m}
+        pick = np.bincount(q.argmax(1), minlength=n_t) / len(states)
+        lines += [f"{title} ({len(states)}): Spearman Q vs imagination **{rho['imagination']:.2f}**, vs real "
+                  f"**{rho['real']:.2f}**.", "",
+                  "| T | mean Q | measured, imagination | measured, real | argmax Q | best, imagination | best, real |",
+                  "|---|---|---|---|---|---|---|"]
+        lines += [f"| {T} | {q[:, T - 1].mean():.2f} | {m['imagination'][:, T - 1].mean():.2f} | "
+                  f"{m['real'][:, T - 1].mean():.2f} | {pick[T - 1]:.2f} | {best['imagination'][T - 1]:.2f} | "
+                  f"{best['real'][T - 1]:.2f} |" for T in range(1, n_t + 1)]
+        lines.append("")
+    return lines
 
 
 STYLE = {"imagination": ("C0", "-", "o", "imagination: one Eq. (7) decision, then TARL"),
@@ -328,10 +378,23 @@ def main(argv=None):
     p.add_argument("--crash-every", type=int, default=5, help="[steps] between the branch states before a collision")
     p.add_argument("--out", type=Path, default=OUT)
     p.add_argument("--report", action="store_true", help="only rewrite summary.md and ranking.png from the JSONs")
+    p.add_argument("--critic", type=Path, metavar="CKPT", help="add the timing taker's Q(s, a, T) of this ckpt.pt of "
+                   "the shipped run (a retrain: training is deterministic) to the states of the --scenario's JSON "
+                   "(no branch is played; the same policies and states, checked), then the report")
     args = p.parse_args(argv)
     torch.set_num_threads(1)  # beside other busy processes
     args.out.mkdir(parents=True, exist_ok=True)
-    if not args.report:
+    if args.critic and args.scenario == "both":
+        p.error("--critic CKPT is one scenario's run: give --scenario")
+    for sc in [args.scenario] if args.critic else []:
+        old = json.loads((args.out / f"{sc}.json").read_text())
+        new = probe(sc, old["cases"], old["every"], args.crash_search, len(old["crash_cases"]), args.crash_every,
+                    critic=args.critic)
+        assert [(s["case"], s["k"], s["taker_pi"]) for s in new["states"]] == \
+               [(s["case"], s["k"], s["taker_pi"]) for s in old["states"]], f"{sc}: not the JSON's states"
+        old.update(states=new["states"], alpha=new["alpha"])
+        (args.out / f"{sc}.json").write_text(json.dumps(old))
+    if not args.report and not args.critic:
         for sc in sorted(tarl.SCENARIOS) if args.scenario == "both" else [args.scenario]:
             res = probe(sc, args.cases, args.every, args.crash_search, args.crash_cases, args.crash_every)
             (args.out / f"{sc}.json").write_text(json.dumps(res))
