@@ -95,8 +95,9 @@ def test_the_critic_is_read_from_a_checkpoint_of_the_shipped_policies_only(world
     res = tp.probe("roundabout", cases=1, every=1000, crash_search=1, crash_cases=0, crash_every=5, t_max=2,
                    critic=tmp_path / "ckpt.pt")
     assert res["branches"] == [] and len(res["states"][0]["taker_q"]) == trainer.tc.timing.t_max
+    assert isinstance(res["states"][0]["actor_q"], float)
     res["branches"] = [dict(case=0, k=0, kind="regular", loop=lp, T=T, disc=float(T), outcome="arrival")
-                       for lp in tp.LOOPS[:2] for T in (1, 2)]
+                       for lp, T in [("original", 0), *((lp, T) for lp in tp.LOOPS[:2] for T in (1, 2))]]
     text = "\n".join(tp.critic_lines(res))
     assert "| 2 | " in text and "best, imagination" in text and "before collisions" not in text
     weight = next(trainer.actor.policy.parameters())

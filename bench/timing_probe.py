@@ -166,10 +166,12 @@ def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases:
                 with torch.no_grad():
                     pi = trainer.timing_taker.timing_distribution(x)[0][0].numpy()
                     q = trainer.timing_taker.critic(x).amin(0)[0].numpy()  # min of the twin Q(s, a, T), Eq. (9)
+                    q_actor = float(trainer.actor.critic(torch.as_tensor(obs)[None], torch.as_tensor(a)[None]).amin())
                 out["states"].append(dict(case=c, k=k, kind=kind, episode=ep["outcome"],
                                           episode_steps=len(ep["actions"]), taker_T=int(pi.argmax()) + 1,
                                           taker_pi=pi.round(4).tolist()) | ({} if critic is None else
-                                                                            dict(taker_q=q.round(4).tolist())))
+                                                                            dict(taker_q=q.round(4).tolist(),
+                                                                                 actor_q=round(q_actor, 4))))
                 if critic is not None:
                     continue
                 same = drive(env, trainer, obs)  # the control: TARL's own continuation
@@ -313,10 +315,13 @@ def critic_lines(res: dict) -> list[str]:
         m = {lp: np.array([[disc[st["case"], st["k"], lp, T] for T in range(1, n_t + 1)] for st in states])
              for lp in LOOPS[:2]}
         rho = {lp: np.nanmean([spearman(qi, mi) for qi, mi in zip(q, m[lp])]) for lp in m}
+        own = np.mean([disc[st["case"], st["k"], "original", 0] for st in states])
         best = {lp: np.bincount(m[lp].argmax(1), minlength=n_t) / len(states) for lp in m}
         pick = np.bincount(q.argmax(1), minlength=n_t) / len(states)
         lines += [f"{title} ({len(states)}): Spearman Q vs imagination **{rho['imagination']:.2f}**, vs real "
-                  f"**{rho['real']:.2f}**.", "",
+                  f"**{rho['real']:.2f}**. The actor's critic min Q(s, a) (Eq. (13)) at the same states: "
+                  f"{np.mean([st['actor_q'] for st in states]):.2f}, against TARL's own continuation's measured "
+                  f"{own:.2f}.", "",
                   "| T | mean Q | measured, imagination | measured, real | argmax Q | best, imagination | best, real |",
                   "|---|---|---|---|---|---|---|"]
         lines += [f"| {T} | {q[:, T - 1].mean():.2f} | {m['imagination'][:, T - 1].mean():.2f} | "
