@@ -411,9 +411,10 @@ def parse_args(argv=None):
             p.error("--timing changes how a loaded actor is timed: give it --load CKPT of a learned row")
         if name in ("learned", "phased", "cap") and ROWS[args.algo].timing not in ("taker", "phased"):
             p.error(f"--timing {name} needs a timing taker: --algo {args.algo} has none")
-    if args.step_one is not None and not (0 < args.step_one < args.steps and ROWS[args.algo].step_one and not args.load):
-        p.error(f"--step-one sets step 1 of a run to train, above 0 and below --steps; --algo {args.algo} "
-                + ("has none" if not ROWS[args.algo].step_one else "has it"))
+    if args.step_one is not None and (not ROWS[args.algo].step_one or args.load):
+        p.error(f"--step-one sets Alg. 1's step 1 of a run to train: --algo {args.algo} has none, or --load was given")
+    if args.step_one is not None and not 0 < args.step_one < args.steps:
+        p.error("--step-one must be above 0 and below --steps")
     if args.svo is not None and not 0.0 <= args.svo[0] <= args.svo[1] <= 1.0:
         p.error("--svo LOW HIGH: 0 <= LOW <= HIGH <= 1")
     if args.spawn_gap is not None and not args.spawn_gap > 0:
