@@ -165,14 +165,14 @@ def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases:
                 x = torch.as_tensor(tarl.timing_input(obs, a, cfg))[None]
                 with torch.no_grad():
                     pi = trainer.timing_taker.timing_distribution(x)[0][0].numpy()
-                    q = trainer.timing_taker.critic(x).amin(0)[0].numpy()  # min of the twin Q(s, a, T), Eq. (9)
-                    q_actor = float(trainer.actor.critic(torch.as_tensor(obs)[None], torch.as_tensor(a)[None]).amin())
                 out["states"].append(dict(case=c, k=k, kind=kind, episode=ep["outcome"],
                                           episode_steps=len(ep["actions"]), taker_T=int(pi.argmax()) + 1,
-                                          taker_pi=pi.round(4).tolist()) | ({} if critic is None else
-                                                                            dict(taker_q=q.round(4).tolist(),
-                                                                                 actor_q=round(q_actor, 4))))
-                if critic is not None:
+                                          taker_pi=pi.round(4).tolist()))
+                if critic is not None:  # the critics' view of the state, no branch
+                    with torch.no_grad():
+                        q = trainer.timing_taker.critic(x).amin(0)[0]  # min of the twin Q(s, a, T), Eq. (9)
+                        q_actor = trainer.actor.critic(torch.as_tensor(obs)[None], torch.as_tensor(a)[None]).amin()
+                    out["states"][-1].update(taker_q=q.numpy().round(4).tolist(), actor_q=round(float(q_actor), 4))
                     continue
                 same = drive(env, trainer, obs)  # the control: TARL's own continuation
                 assert (same["outcome"], same["rewards"]) == (ep["outcome"], ep["rewards"][k:]), \
@@ -391,7 +391,8 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     if args.critic and args.scenario == "both":
         p.error("--critic CKPT is one scenario's run: give --scenario")
-    for sc in [args.scenario] if args.critic else []:
+    if args.critic:
+        sc = args.scenario
         old = json.loads((args.out / f"{sc}.json").read_text())
         new = probe(sc, old["cases"], old["every"], args.crash_search, len(old["crash_cases"]), args.crash_every,
                     critic=args.critic)
