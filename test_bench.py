@@ -144,3 +144,12 @@ def test_table3_commits_just_the_files_it_is_given(tmp_path, monkeypatch):
     table3.commit([tmp_path / "cell.json"], "Table 3 grid: a cell")
     assert git("log", "--format=%s") == "Table 3 grid: a cell\n"
     assert git("show", "--name-only", "--format=") == "cell.json\n" and "?? other.txt" in git("status", "--short")
+
+
+def test_table3_a_relative_work_directory_is_the_callers_not_the_repositorys(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "results" / "runs").mkdir(parents=True)
+    table3.main(["--work", "cells", "--results", "results", "--algos", "sac", "--seeds", "4",
+                 "--scenarios", "intersection", "--print-commands"])
+    out = capsys.readouterr().out.split()
+    assert out[out.index("--out") + 1] == str(tmp_path / "cells" / "intersection-sac-s4")

@@ -356,7 +356,7 @@ def collect(args):
     return found
 
 
-def main():
+def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -378,7 +378,9 @@ def main():
     p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md")
     p.add_argument("--readme", action="store_true", help="also rewrite the result tables of README.md (the headline) "
                    "and RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
-    args = p.parse_args()
+    args = p.parse_args(argv)
+    # the cells run with cwd=ROOT: a relative --work or --results means the caller's directory, not ROOT
+    args.work, args.results = args.work.resolve(), args.results.resolve()
     if args.jobs < 1 or (args.threads is not None and args.threads < 1):
         p.error("--jobs and --threads must be at least 1")
     if args.step_one is not None and not 0 < args.step_one < args.steps:
