@@ -87,7 +87,8 @@ def test_the_stored_answers_are_still_the_projects():
             fresh = build()
             assert sorted(stored.files) == sorted(fresh), n
             for key in stored.files:
-                np.testing.assert_allclose(stored[key], fresh[key], rtol=1e-6, atol=1e-7, err_msg=f"ex{n}.npz: {key}")
+                # float32 networks (ex5's q_next) sum in another order on another CPU (AVX2 / AVX-512): 5e-7 apart
+                np.testing.assert_allclose(stored[key], fresh[key], rtol=1e-5, atol=1e-6, err_msg=f"ex{n}.npz: {key}")
 
 
 # ---- B: the bug hunt ----------------------------------------------------------------------------
