@@ -87,7 +87,7 @@ def test_the_stored_answers_are_still_the_projects():
             fresh = build()
             assert sorted(stored.files) == sorted(fresh), n
             for key in stored.files:
-                # float32 networks (ex5's q_next) sum in another order on another CPU (AVX2 / AVX-512): 5e-7 apart
+                # float32 networks (ex5's q_next) sum in another order on another CPU: 5e-7 apart on an AVX2 machine
                 np.testing.assert_allclose(stored[key], fresh[key], rtol=1e-5, atol=1e-6, err_msg=f"ex{n}.npz: {key}")
 
 
