@@ -3,8 +3,8 @@
 Sections 3 and 5.1-5.2 of the paper: an unsignalized intersection or a two-lane roundabout
 (scenarios/), human drivers who follow IDM with Table 1's parameters and play a level-k (k = 2)
 game with the ego at every conflict point, the ego's observation and reward (EnvConfig's
-spawn_gap, svo_range and human_level shift the traffic). DrivingEnv follows Gymnasium's
-conventions; tarl.py learns in it. Equations are cited by the number printed in the paper's PDF
+spawn_gap, svo_range and human_level shift the traffic). DrivingEnv is a Gymnasium environment,
+registered as tarl/Intersection-v0 and tarl/Roundabout-v0; tarl.py learns in it. Equations are cited by the number printed in the paper's PDF
 (PAPER.md maps them to the LaTeX labels and has the notes cited as "PAPER.md, note n").
 
     Eqs. (1)-(2)                  DrivingEnv.step: one SUMO step; SUMO + level-k drivers are xi_t
@@ -13,19 +13,21 @@ conventions; tarl.py learns in it. Equations are cited by the number printed in 
     Eqs. (27)-(30) observation    SECTORS, sector_index, observe;  Eq. (31): reward
     Sec. 5.3 test cases           DrivingEnv.record_cases, reset(options={"case": ...}), fingerprint
     Eqs. (18)-(23) base action    DrivingEnv.plan, base_action (planner.py)
+    Watching it                   DrivingEnv.render (scene.py draws), snapshot, show; make (gymnasium.make)
 """
 from __future__ import annotations
 
 import hashlib
 import math
-import os
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
+import gymnasium
 import numpy as np
+from gymnasium import spaces
 
 import planner
+from scenarios import check_network, scenario_files, sumo_home  # noqa: F401 (world.X for experiment.py)
 
 HERE = Path(__file__).resolve().parent
 EGO = "ego"
@@ -157,6 +159,11 @@ def observe(ego_xy, ego_heading, ego_speed, task, zone, others, cfg: EnvConfig) 
     return np.concatenate([s_ego, s_sur.ravel()]).astype(np.float32)
 
 
+def centre(front, heading, length):
+    """SUMO's position of a vehicle is its front bumper: its centre [m] lies length / 2 behind, along heading [rad]."""
+    return np.asarray(front) - 0.5 * length * np.stack([np.cos(heading), np.sin(heading)], -1)
+
+
 def reward(arrived: bool, collided: bool, v: float, v_min: float, v_max: float) -> float:
     """Eq. (31): +20 on arrival, -20 on collision, else min((v - v_min) / (v_max - v_min), 1) x 0.5."""
     if collided:
@@ -237,57 +244,8 @@ def level_k_decisions(t_h, t_e, decel_h, decel_e, waited_h, waited_e, alpha_h, s
     return np.where(decel_h > 1.0, CROSS, h)
 
 
-# ---- SUMO --------------------------------------------------------------------------------------------
-
-
-def sumo_home() -> Path:
-    try:
-        import sumo  # the eclipse-sumo wheel
-        return Path(sumo.SUMO_HOME)
-    except ImportError:
-        if os.environ.get("SUMO_HOME"):
-            return Path(os.environ["SUMO_HOME"])
-        raise SystemExit("SUMO is not installed: pip install -r requirements.txt (eclipse-sumo, libsumo)")
-
-
-def scenario_files(scenario: str) -> tuple[Path, Path]:
-    """The network and route files of a scenario (scenarios/), checked to exist."""
-    files = tuple(HERE / "scenarios" / f"{scenario}.{x}.xml" for x in ("net", "rou"))
-    for f in files:
-        if not f.is_file():
-            raise SystemExit(f"missing {f}: rebuild the networks with `python scenarios/build.py`")
-    return files
-
-
-_checked: set[tuple] = set()  # network and route files SUMO has read in this process, as they were
-
-
-def check_network(net: Path, rou: Path):
-    """SUMO can read the scenario's files, or one line saying why not. Tried in a subprocess, once per process
-    and version of the files: libsumo takes the process down on a broken network (an evaluation worker too)."""
-    key = tuple((str(f), f.stat().st_mtime_ns) for f in (net, rou))
-    if key in _checked:
-        return
-    check = subprocess.run([str(sumo_home() / "bin" / "sumo"), "-n", str(net), "-r", str(rou), "--end", "0"],
-                           capture_output=True, text=True)
-    if check.returncode != 0:
-        error = next((line for line in (check.stderr + check.stdout).splitlines() if "rror" in line),
-                     f"SUMO crashed reading it (exit code {check.returncode}), is it valid XML?")
-        raise SystemExit(f"SUMO cannot load {net.name}: {error.strip()} Rebuild the networks with "
-                         "`python scenarios/build.py`.")
-    _checked.add(key)
-
-
-class Box:
-    """Bounds of a space, in the shape of gymnasium.spaces.Box (low, high, shape, dtype)."""
-
-    def __init__(self, low, high):
-        self.low, self.high = np.asarray(low, np.float32), np.asarray(high, np.float32)
-        self.shape, self.dtype = self.low.shape, np.float32
-
-
-class DrivingEnv:
-    """The ego's task in SUMO with Gymnasium's conventions (reset -> (obs, info); step -> 5-tuple).
+class DrivingEnv(gymnasium.Env):
+    """The ego's task in SUMO as a Gymnasium environment (reset -> (obs, info); step -> 5-tuple).
 
     The simulation runs continuously: traffic flows between episodes, the ego is re-spawned on a
     random free lane and route at every reset, and SUMO restarts (new seed, warm-up) after t_sim.
@@ -296,13 +254,15 @@ class DrivingEnv:
     info: "collision", "arrival", "timeout" (bools), "crossing_time" [s] from spawn to arrival (None
     before), "cost": the constrained baselines' cost, 1.0 at the step the ego collides, else 0.0.
     libsumo runs one simulation per process (traci for sumo-gui): a new env takes it over.
+    render_mode "rgb_array": render() draws the scene from above (scene.py); show(T, beta) tells it who drives.
     Methods in reading order: an episode, the base action, collisions, the game, the observation;
     then SUMO's start-up, the humans, the ego's routes, test cases, helpers.
     """
 
     _owner: dict = {}  # the env that holds this process's libsumo (False) / TraCI (True) simulation
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}  # 1 / dt: a frame per step plays in real time
 
-    def __init__(self, cfg: EnvConfig = EnvConfig(), gui: bool = False):
+    def __init__(self, cfg: EnvConfig = EnvConfig(), gui: bool = False, render_mode: str | None = None):
         if cfg.scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {cfg.scenario!r}; choose from {sorted(SCENARIOS)}")
         if not isinstance(cfg.human_level, (int, np.integer)) or isinstance(cfg.human_level, bool) or cfg.human_level < 0:
@@ -312,15 +272,17 @@ class DrivingEnv:
             raise ValueError(f"svo_range is (low, high) with 0 <= low <= high <= 1, not {cfg.svo_range!r}")
         if cfg.spawn_gap is not None and not cfg.spawn_gap > 0.0:
             raise ValueError(f"spawn_gap is a mean gap [s] > 0 (math.inf: no humans), not {cfg.spawn_gap!r}")
-        self.cfg, self.gui, self.planner_cfg = cfg, gui, cfg.planner()
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode is one of {self.metadata['render_modes']} or None, not {render_mode!r}")
+        self.cfg, self.gui, self.planner_cfg, self.render_mode, self._renderer = cfg, gui, cfg.planner(), render_mode, None
         try:
             self.sim = __import__("traci" if gui else "libsumo")
         except ImportError:
             raise SystemExit("libsumo/traci is not installed: pip install -r requirements.txt") from None
         self.V = self.sim.constants
         self.net_file, self.route_file = scenario_files(cfg.scenario)
-        self.observation_space = Box(np.zeros(OBS_DIM), np.ones(OBS_DIM))
-        self.action_space = Box([cfg.a_min], [cfg.a_max])
+        self.observation_space = spaces.Box(0.0, 1.0, (OBS_DIM,), np.float32)
+        self.action_space = spaces.Box(np.float32(cfg.a_min), np.float32(cfg.a_max), (1,), np.float32)
         self.rng = np.random.default_rng()
         self.running = self.ego_alive = False
         self.tasks: list[dict] | None = None  # the ego's routes, read from SUMO at the first start
@@ -336,7 +298,8 @@ class DrivingEnv:
         if "case" in options:
             self._load_case(options["case"])
         elif seed is not None:
-            self.rng = np.random.default_rng(seed)
+            super().reset(seed=seed)
+            self.rng = self.np_random  # the same stream as np.random.default_rng(seed)
             self._start(seed)
         elif not self.running or sim.simulation.getTime() - self.t_start > c.sc.t_sim:
             self._start(int(self.rng.integers(2**31)))  # Table 1: the simulation restarts every t_sim
@@ -515,10 +478,8 @@ class DrivingEnv:
         self.others = np.zeros((len(ids), 5))
         if ids:
             others = np.array([(*ctx[k][V.VAR_POSITION], ctx[k][V.VAR_SPEED], ctx[k][V.VAR_ANGLE], 0.0) for k in ids])
-            heading = np.radians(90.0 - others[:, 3])
-            others[:, 3] = heading
-            others[:, 0] -= 0.5 * L * np.cos(heading)
-            others[:, 1] -= 0.5 * L * np.sin(heading)
+            others[:, 3] = heading = np.radians(90.0 - others[:, 3])
+            others[:, :2] = centre(others[:, :2], heading, L)
             before = np.array([self._headings.get(k, h) for k, h in zip(ids, heading.tolist())])
             others[:, 4] = wrap_angle(heading - before) / self.cfg.dt  # over the last step
             self._headings = dict(zip(ids, heading.tolist()))
@@ -705,10 +666,37 @@ class DrivingEnv:
         return hashlib.sha1(repr(state).encode()).hexdigest()[:16]
 
     # ---- Helpers -----------------------------------------------------------------------------
-    def show(self, text: str):
-        """Write `text` beside the ego in sumo-gui (its parameter "timing", scenarios/gui.xml)."""
+    def show(self, T: int | None, beta: float | None):
+        """Who drives the next step, for render() and beside the ego in sumo-gui (scenarios/gui.xml): the
+        timing T (None without one) and beta (1: the actor alone, 0: the planner alone)."""
+        self.shown = (T, beta)
         if self.gui:
-            self.sim.vehicle.setParameter(EGO, "timing", text)
+            self.sim.vehicle.setParameter(EGO, "timing", f"T = {T or '-'}, beta = {beta:.2f}")
+
+    def snapshot(self) -> dict:
+        """The scene now as plain data, what render() draws (after the episode's end, its last state): every
+        other vehicle in SUMO (ids, (M, 3) centre x, y [m], heading [rad]), the humans in the game with the
+        ego and their choice, the ego's (x, y, heading), speed [m/s], zone (h2), time since spawn [s], the base
+        planner's path (K, 2) [m] and who drives (show)."""
+        sim, c = self.sim, self.cfg
+        ids = [v for v in sim.vehicle.getIDList() if v != EGO]
+        xyh = np.array([(*sim.vehicle.getPosition(v), math.radians(90.0 - sim.vehicle.getAngle(v))) for v in ids]
+                       or np.zeros((0, 3)))
+        xyh[:, :2] = centre(xyh[:, :2], xyh[:, 2], c.length)
+        T, beta = getattr(self, "shown", (None, None))
+        return dict(t=sim.simulation.getTime() - self.t_spawn, v=self.v, ego=np.array([*self.xy, self.heading]), ids=ids,
+                    vehicles=xyh, game={h: ("cross", "yield")[k] for h, k in self.decisions.items()}, s=float(self.s),
+                    zone=int(np.argmax(self.obs[3:6])), plan=self.plan_xy(), T=T, beta=beta, length=c.length,
+                    width=c.width, perception=c.perception, scenario=c.scenario, net_file=str(self.net_file))
+
+    def render(self):
+        """render_mode "rgb_array": the scene from above as an (H, W, 3) uint8 frame (scene.py draws it)."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() without a render_mode: make the env with render_mode='rgb_array'")
+            return None
+        import scene  # matplotlib loads only when something is drawn
+        self._renderer = self._renderer or scene.Renderer(self.net_file)
+        return self._renderer.frame(self.snapshot())
 
     def _info(self, collided, arrived, timeout, t):
         return dict(collision=collided, arrival=arrived, timeout=timeout, crossing_time=t if arrived else None,
@@ -746,3 +734,12 @@ class DrivingEnv:
             self.humans.pop(h, None)
             self.decisions.pop(h, None)
             self.capped.discard(h)
+
+
+def make(render_mode: str | None = None, **fields) -> DrivingEnv:
+    """gymnasium.make's entry point: EnvConfig's fields as keyword arguments, e.g. spawn_gap=0.9."""
+    return DrivingEnv(EnvConfig(**fields), render_mode=render_mode)
+
+
+for _name in SCENARIOS:  # gymnasium.make("tarl/Roundabout-v0", render_mode="rgb_array") after `import world`
+    gymnasium.register(f"tarl/{_name.title()}-v0", entry_point="world:make", kwargs={"scenario": _name})
