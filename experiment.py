@@ -32,6 +32,7 @@ import tarl  # noqa: I001 (first: it sets OpenMP's wait policy before torch load
 import baselines
 import numpy as np
 import torch
+import variants
 import world
 from tarl import Driver, SACConfig, TimingConfig, TrainConfig, execute
 from world import SCENARIOS, DrivingEnv, EnvConfig
@@ -56,6 +57,9 @@ ROWS = {
     "tarl-consistent": Row("TARL, phased real loop", "phased", True, tarl.Trainer),  # beyond the paper (PAPER.md)
     "tarl-held": Row("TARL, held imagination", "taker", True, tarl.Trainer, "held"),  # beyond the paper (PAPER.md)
     "tarl-utd": Row("TARL, 8 timing updates", "taker", True, tarl.Trainer, timing_updates=8),  # beyond the paper
+    "tarl-actor-target": Row("TARL, actor's critic in Eq. (9)", "taker", True, variants.ActorTargetTrainer,
+                             timing_updates=0),  # beyond the paper (PAPER.md, 6): a timing update every step instead
+    "tarl-rare-replay": Row("TARL, collision replay", "taker", True, variants.RareReplayTrainer),  # beyond the paper
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),
@@ -135,8 +139,7 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
     start, done = env.fingerprint(), False
     while not done:
         a, T, b = driver.act(obs, env, deterministic)
-        if env.gui:
-            env.show(f"T = {T or '-'}, beta = {b:.2f}")
+        env.show(T, b)  # who drives: for render() and sumo-gui
         for key, value in (("a", np.nan if a is None else a[0]), ("T", T or 0), ("beta", b), ("v", env.v),
                            ("a_base", env.base_action() if b < 1.0 or record else np.nan), ("a_bar", execute(env, a, b))):
             ep[key].append(value)

@@ -320,8 +320,9 @@ class ReplayBuffer:
             array[self.ptr] = row[key]
         self.ptr, self.size = (self.ptr + 1) % self.capacity, min(self.size + 1, self.capacity)
 
-    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-        idx = rng.integers(0, self.size, batch_size)
+    def sample(self, batch_size: int, rng: np.random.Generator, idx=None) -> dict[str, torch.Tensor]:
+        """A uniform batch, or the rows idx if given."""
+        idx = rng.integers(0, self.size, batch_size) if idx is None else idx
         return {key: torch.from_numpy(array[idx]) for key, array in self.data.items()}
 
     def state_dict(self) -> dict:
@@ -581,9 +582,10 @@ class Trainer:
         """Further columns of D_a, none here (a constrained baseline stores info["cost"])."""
         return {}
 
-    def timing_batch(self, batch_size: int, rng) -> dict[str, torch.Tensor]:
-        """A batch of D_T whose a_{t+T} in Eq. (9)'s target comes from the actor of now, not of then."""
-        batch = self.D_T.sample(batch_size, rng)
+    def timing_batch(self, batch_size: int, rng, idx=None) -> dict[str, torch.Tensor]:
+        """A batch of D_T (uniform, or its rows idx) whose a_{t+T} in Eq. (9)'s target comes from the actor of
+        now, not of then."""
+        batch = self.D_T.sample(batch_size, rng, idx)
         with torch.no_grad():
             a_next = self.actor.squashed_gaussian(batch["next_obs"][:, :OBS_DIM])[0]
         batch["next_obs"][:, OBS_DIM] = scaled_action(a_next[:, 0], self.env.cfg)  # Eq. (5)

@@ -1,0 +1,100 @@
+"""The variants beyond the paper that give the timing taker the signal it lacks (variants.py, PAPER.md, 6): each
+mechanism checked by hand on a D_T filled here, and a short real run of each that updates and reloads."""
+import numpy as np
+import pytest
+import torch
+
+import experiment
+import tarl
+import variants
+from tarl import OBS_DIM, EnvConfig, SACConfig, TrainConfig
+
+SMALL_SAC = SACConfig(batch_size=32, buffer_size=5_000, learning_starts=100, hidden=32)
+SMALL = TrainConfig(steps=900, sac_fraction=0.2, n_timing=5, n_actor=15, timing_pretrain=0.1,
+                    timing_learning_starts=10, log_every=10**9, checkpoint_every=10**9)
+QUIET = dict(log=lambda *a: None)
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    yield env
+    env.close()
+
+
+def fill(trainer, n: int, collisions=()):
+    """n decisions in D_T by hand: decision i has obs i / n, T = i % 10 + 1, r_T = i, next obs i / n + 1/2;
+    those in `collisions` end in a collision (delta = 1, r_T = -20), every 7th other one arrives (delta = 1, +20)."""
+    for i in range(n):
+        x = np.full(OBS_DIM + 1, i / n, np.float32)
+        crash, arrive = i in collisions, i % 7 == 6 and i not in collisions
+        trainer.D_T.add(x, i % 10 + 1, -20.0 if crash else 20.0 if arrive else float(i), x + 0.5,
+                        0.99 ** (i % 10 + 1), crash or arrive)
+
+
+def test_actor_target_bootstraps_eq_9_from_the_actors_soft_value(env):
+    """y = r_T + gamma^T (1 - delta) (min Q'_a(s', a') - alpha_a log pi_a(a'|s')), a' ~ pi_a(s'), by hand."""
+    trainer = experiment.make_trainer("tarl-actor-target", env, SMALL, seed=1, state=dict(config=dict(sac=vars(SMALL_SAC))), **QUIET)
+    fill(trainer, 40)
+    idx = np.arange(40)
+    torch.manual_seed(5)
+    batch = trainer.timing_batch(40, np.random.default_rng(0), idx)
+    torch.manual_seed(5)
+    plain = tarl.Trainer.timing_batch(trainer, 40, np.random.default_rng(0), idx)  # TARL's batch, the same draws
+    s2 = plain["next_obs"][:, :OBS_DIM]
+    a2, log_p = trainer.actor.squashed_gaussian(s2)  # the draw after timing_batch's own a_next, as in the variant
+    with torch.no_grad():
+        q = trainer.actor.critic_target(s2, a2).amin(0).squeeze(-1)
+        v = q - trainer.actor.log_alpha.exp() * log_p
+    r, disc, done = plain["rew"], plain["discount"], plain["done"]
+    torch.testing.assert_close(batch["rew"], r + disc * (1 - done) * v)
+    assert torch.equal(batch["discount"], torch.zeros(40))
+    assert torch.equal(batch["obs"], plain["obs"]) and torch.equal(batch["act"], plain["act"])
+    # the timing taker's Eq. (9) target is then y itself
+    torch.testing.assert_close(tarl.td_target(trainer.timing_taker, batch), batch["rew"])
+    assert torch.equal(done, torch.tensor([float(i % 7 == 6) for i in range(40)]))  # terminal: y = r_T alone
+    torch.testing.assert_close(batch["rew"][done == 1], r[done == 1])
+
+
+def test_rare_replay_draws_a_quarter_of_each_batch_from_d_ts_collisions(env):
+    trainer = experiment.make_trainer("tarl-rare-replay", env, SMALL, seed=1, state=dict(config=dict(sac=vars(SMALL_SAC))), **QUIET)
+    fill(trainer, 200)  # no collision yet: Algorithm 1's uniform batch, the same draws as TARL's
+    torch.manual_seed(0)
+    mine = trainer.timing_batch(64, np.random.default_rng(3))
+    torch.manual_seed(0)
+    theirs = tarl.Trainer.timing_batch(trainer, 64, np.random.default_rng(3))
+    assert all(torch.equal(mine[k], theirs[k]) for k in mine)
+    trainer.D_T.ptr = trainer.D_T.size = 0
+    collisions = {3, 50, 121}
+    fill(trainer, 200, collisions)
+    for seed in range(5):
+        batch = trainer.timing_batch(64, np.random.default_rng(seed))
+        rows = np.round(batch["obs"][:, 0].numpy() * 200).astype(int)
+        crash = np.isin(rows, list(collisions))
+        assert crash[-16:].all()  # the last quarter: collisions only (16 of 64)
+        assert crash.sum() < 16 + 5  # the rest uniform over 200 decisions, 3 of them collisions
+        assert (batch["done"][crash] == 1).all() and (batch["rew"][crash] == -20).all()
+
+
+@pytest.mark.parametrize("algo", ["tarl-actor-target", "tarl-rare-replay"])
+def test_short_runs_of_the_signal_variants_update_count_their_steps_and_reload(algo, env, tmp_path):
+    small = dict(config=dict(sac=vars(SMALL_SAC)))
+    trainer = experiment.make_trainer(algo, env, SMALL, seed=1, out=tmp_path, state=small, **QUIET)
+    ready = []  # per simulator step: did D_T hold enough decisions for a timing update
+    after = trainer.after_step
+    trainer.after_step = lambda *a: ready.append(len(trainer.D_T) >= SMALL.timing_learning_starts) or after(*a)
+    trainer.run()
+    assert trainer.step == len(ready) >= SMALL.steps  # every simulator step of both loops counts
+    assert trainer.updates["actor"] > 50
+    decisions = len(trainer.D_T) - SMALL.timing_learning_starts + 1
+    if algo == "tarl-actor-target":  # one timing update per simulator step once D_T is ready, none per decision
+        assert trainer.updates["timing"] == sum(ready) > decisions
+    else:  # Algorithm 1's one per decision
+        assert trainer.updates["timing"] == decisions
+    state = experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", algo)
+    fresh = experiment.make_trainer(algo, env, SMALL, seed=2, state=state, **QUIET)
+    fresh.load(state, resume=True)
+    assert isinstance(fresh, type(trainer)) and len(fresh.D_T) == len(trainer.D_T)
+    x = np.random.default_rng(0).uniform(0, 1, (4, OBS_DIM + 1)).astype(np.float32)
+    np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
+    assert isinstance(trainer, (variants.ActorTargetTrainer, variants.RareReplayTrainer))
