@@ -2,8 +2,9 @@
 answer with a message that names the mistake; the stored answers are still the project's; the bug hunt's
 copy of world.observe differs from it where it should, and nowhere a shape or a range would show; in vivo,
 a solution drives as the project does and a wrong answer is caught at a named case; the paired statistics
-are exact and agree with results/table3.md; every command of EXERCISES.md runs at a tiny budget and exits
-as its comment says. (Instructors only: these tests name the bug hunt's bug.)"""
+are exact and agree with results/table3.md; every command of EXERCISES.md and INSTRUCTORS.md runs at a tiny
+budget and exits as its comment says; the student's page gives no answer away. (Instructors only: these tests
+name the bug hunt's bug.)"""
 import importlib
 import json
 import math
@@ -28,6 +29,7 @@ from exercises.solutions import ex2_observation
 HERE = Path(__file__).resolve().parent
 NUMBERS = ["1", "2", "3", "4", "5"]
 WRONG = sorted((HERE / "exercises" / "wrong").glob("ex*.py"))
+PAGES = ("EXERCISES.md", "INSTRUCTORS.md")  # the student's page, then the instructors' (the answers)
 
 
 # ---- A: the checkers ----------------------------------------------------------------------------
@@ -73,10 +75,47 @@ def test_the_command_line_exits_0_on_a_solution_and_1_on_a_wrong_answer():
     assert wrong.returncode == 1 and "is dt / T swapped?" in wrong.stdout, wrong.stdout + wrong.stderr
 
 
-def test_the_instructors_section_lists_every_wrong_answer():
-    text = (HERE / "EXERCISES.md").read_text()
+def test_the_instructors_page_lists_every_wrong_answer():
+    text = (HERE / "INSTRUCTORS.md").read_text()
     for path in WRONG:
         assert path.stem in text, path.stem
+
+
+def test_the_students_page_gives_no_answer_away_and_points_to_the_instructors_page_with_a_warning():
+    """EXERCISES.md names no kept wrong answer, quotes no message the checker keeps for one, and shows
+    neither the bug hunt's line nor its fix; its "For instructors" section links INSTRUCTORS.md as spoilers."""
+    text = (HERE / "EXERCISES.md").read_text()
+    for path in WRONG:
+        assert path.stem not in text, path.stem
+        assert check.load(path).CHECKER_SAYS.lower() not in text.lower(), path.stem
+    for line in ("rel = ego_xy - others[:, :2]", "rel = others[:, :2] - ego_xy", "ego_xy - others", "others[:, :2] - ego_xy"):
+        assert line not in text, line
+    pointer = text.split("## For instructors\n", 1)[1]
+    assert "(INSTRUCTORS.md)" in pointer and "Spoilers" in pointer and "don't open it" in pointer, pointer
+
+
+def slug(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading: lower case, punctuation dropped, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_the_links_between_the_two_pages_work():
+    """Every relative link of EXERCISES.md and INSTRUCTORS.md names a file that exists and, after #, one of
+    its headings; each page links the other."""
+    links = {}
+    for page in PAGES:
+        links[page] = re.findall(r"\]\(([^)\s]+)\)", (HERE / page).read_text())
+        for link in links[page]:
+            if re.match(r"[a-z]+:", link):
+                continue
+            target, _, anchor = link.partition("#")
+            path = HERE / (target or page)
+            assert path.exists(), f"{page}: {link}"
+            if anchor:
+                headings = re.findall(r"^#+ (.*)$", path.read_text(), re.M)
+                assert anchor in {slug(h) for h in headings}, f"{page}: {link}"
+    assert any(link.startswith("INSTRUCTORS.md") for link in links["EXERCISES.md"])
+    assert any(link.startswith("EXERCISES.md") for link in links["INSTRUCTORS.md"])
 
 
 def test_the_stored_answers_are_still_the_projects():
@@ -159,7 +198,7 @@ def test_in_vivo_passes_on_a_solution_and_names_the_first_case_a_wrong_answer_ch
     wrong = check.load(HERE / "exercises" / "wrong" / "ex1_dt_T_swapped.py")
     assert not in_vivo.run("1", wrong, "a wrong answer", cases=3, log=said.append)
     report = "\n".join(said)
-    assert "FAIL  case 0: collision" in report and "with only tarl.beta in place, case 0 differs too" in report, report
+    assert "FAIL  case 0: collision" in report and "with only your beta in tarl.beta's place, case 0 differs too" in report, report
     assert (tarl.beta, tarl.blend) == (beta, blend)  # restored
 
 
@@ -225,12 +264,12 @@ def test_the_labels_it_reads_are_the_rows_labels():
     assert paired.LABELS == {algo: row.label for algo, row in experiment.ROWS.items()}
 
 
-# ---- Every command of EXERCISES.md, at a tiny budget --------------------------------------------------
+# ---- Every command of EXERCISES.md and INSTRUCTORS.md, at a tiny budget ------------------------------
 
 def doc_commands() -> list[tuple[str, int]]:
-    """(command, the exit code its comment promises: 1 after `# exits 1`, else 0) of every line of
-    EXERCISES.md's ```bash blocks, in order."""
-    blocks = re.findall(r"```bash\n(.*?)```", (HERE / "EXERCISES.md").read_text(), re.S)
+    """(command, the exit code its comment promises: 1 after `# exits 1`, else 0) of every line of the
+    ```bash blocks of EXERCISES.md, then of INSTRUCTORS.md, in order."""
+    blocks = [b for page in PAGES for b in re.findall(r"```bash\n(.*?)```", (HERE / page).read_text(), re.S)]
     lines = [line.strip() for block in blocks for line in block.splitlines()]
     return [(line, 1 if re.search(r"#\s*exits 1", line) else 0) for line in lines if line and not line.startswith("#")]
 
@@ -293,8 +332,9 @@ def run_in_process(program: str, args: list[str]) -> int:
 
 
 def test_every_command_of_exercises_md_runs_and_exits_as_its_comment_says(tmp_path, monkeypatch, capsys):
-    """In document order in one folder (so that lab 6's compare finds lab 6's run), at a tiny budget. The
-    commands read results/, exercises/ and bench/ through links; what they write stays in tmp_path."""
+    """EXERCISES.md's commands, then INSTRUCTORS.md's, in document order in one folder (so that lab 6's
+    compare finds lab 6's run), at a tiny budget. The commands read results/, exercises/ and bench/ through
+    links; what they write stays in tmp_path."""
     for name in ("results", "exercises", "bench", "scenarios"):
         (tmp_path / name).symlink_to(HERE / name)
     monkeypatch.chdir(tmp_path)

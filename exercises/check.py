@@ -367,6 +367,9 @@ GAMMA_NOT_K = ("is the discount gamma? A decision of k steps is discounted by ga
 TIME_LIMIT = ("is done set at the time limit? The time limit is not a terminal: the state it cuts still has a value, "
               "so the target bootstraps (done = 0); only arrival and collision end the task")
 TERMINAL = "arrival and collision are true terminals: done = 1"
+BOTH = ("does the time limit cancel a terminal? With terminated and truncated both true (Gymnasium allows it: an "
+        "arrival or collision on the step the time runs out) the task did end, nothing follows: done = 1, "
+        "as for any terminal (world.DrivingEnv reports such a step as terminated only)")
 EXPECTATION = ("is it a max over T'? The soft value is the expectation over T' ~ pi(.|s'), sum_T' pi(T'|s') [...], "
                "as in SAC, not DQN's max (PAPER.md, note 7)")
 ENTROPY = "the soft value subtracts alpha log pi(T'|s') inside the expectation"
@@ -386,7 +389,9 @@ def check_timing_transition(m, d):
             (([1.0, 2.0], 0.9, True, False), "a decision of T = 3 cut after k = 2 steps by an arrival", (2.8, 0.81, 1.0),
              ({}, {GAMMA_NOT_K: 0.9}, {TERMINAL: 0.0})),
             (([1.0, 2.0], 0.9, False, True), "a decision of T = 3 cut after k = 2 steps by the time limit", (2.8, 0.81, 0.0),
-             ({}, {GAMMA_NOT_K: 0.9}, {TIME_LIMIT: 1.0}))):
+             ({}, {GAMMA_NOT_K: 0.9}, {TIME_LIMIT: 1.0})),
+            (([1.0, 2.0], 0.9, True, True), "a decision of T = 3 cut after k = 2 steps by a collision as the time runs out",
+             (2.8, 0.81, 1.0), ({}, {GAMMA_NOT_K: 0.9}, {BOTH: 0.0}))):
         got = transition(m, *args)
         for name, g, w, wrong in zip(("r_T", "discount", "done"), got, want, hints):
             expect(f"timing_transition{args}, {what}: {name}", float(g), w, "", wrong)
@@ -395,7 +400,7 @@ def check_timing_transition(m, d):
         rewards = [float(r) for r in d["rewards"][k, :n]]
         got = transition(m, rewards, 0.99, term, trunc)
         for name, g, w, hint in zip(("r_T", "discount", "done"), got, (d["r_T"][k], d["discount"][k], d["done"][k]),
-                                    ("", GAMMA_NOT_K, TIME_LIMIT if trunc else TERMINAL)):
+                                    ("", GAMMA_NOT_K, BOTH if term and trunc else TIME_LIMIT if trunc else TERMINAL)):
             expect(f"timing_transition({show(np.array(rewards))}, 0.99, terminated={term}, truncated={trunc}): {name}",
                    float(g), w, hint)
 

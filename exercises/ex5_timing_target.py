@@ -22,6 +22,7 @@ def timing_transition(rewards, gamma, terminated, truncated):
 
     rewards: the k step rewards actually received (k = T, or fewer if the episode ended); gamma: the
     discount factor; terminated: the episode ended by arrival or collision; truncated: by the time limit.
+    Both may be true at once (Gymnasium allows it: an arrival or a collision on the step the time runs out).
     r_T: Eq. (8) over the k rewards; discount: what multiplies the next state's value in Eq. (9);
     done: delta of Eq. (9), 1.0 or 0.0. Returns three floats.
     """

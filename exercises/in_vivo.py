@@ -225,10 +225,10 @@ def run(key: str, module, where: str, cases: int = CASES, log=print) -> bool:
                 log(f"  ok    case {c}: {describe(got)}")
                 continue
             log(f"  FAIL  case {c}: {why}")
-            culprits = [f"{m}.{name}" for (m, name), f in swaps.items()
+            culprits = [f"your {name} in {m}.{name}'s place" for (m, name), f in swaps.items()
                         if len(swaps) > 1 and difference(play_one(shipped, c, {(m, name): f}), stored[c])]
             if culprits:
-                log(f"        with only {' or only '.join(culprits)} in place, case {c} differs too: look there first")
+                log(f"        with only {' or only '.join(culprits)}, case {c} differs too: look there first")
             log(f"Case {c} is the first of {cases} that differs ({time.time() - t0:.0f} s). Does python -m exercises.check "
                 f"{key} pass? Then the simulation asks your function something its checks did not.")
             return False

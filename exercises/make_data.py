@@ -137,6 +137,9 @@ def ex5() -> dict:
         rewards[b, :k] = rng.uniform(-0.06, 0.5, k)
         rewards[b, k - 1] = {"arrival": 20.0, "collision": -20.0}.get(end, rewards[b, k - 1])
         lengths[b], terminated[b], truncated[b] = k, end in ("arrival", "collision"), end == "timeout"
+    # every third terminal on the time limit's last step too: both flags, as Gymnasium allows (DrivingEnv reports
+    # such a step as terminated only), and a terminal all the same (done = terminated)
+    truncated[np.flatnonzero(terminated)[::3]] = 1.0
     r_T = np.array([tarl.discounted_sum(r[:k], GAMMA) for r, k in zip(rewards, lengths)])
     discount, done = GAMMA ** lengths.astype(float), terminated.copy()
     # Eq. (9)'s target, tarl.td_target's discrete branch, on a small timing taker

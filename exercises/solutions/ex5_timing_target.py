@@ -7,7 +7,8 @@ def timing_transition(rewards, gamma, terminated, truncated):
     """One decision of the timing imagination -> (r_T, discount, done) stored in D_T."""
     k = len(rewards)  # the steps actually played: T, or fewer if the episode ended
     r_T = float(np.sum(np.asarray(rewards) * gamma ** np.arange(k)))  # Eq. (8)
-    # Eq. (9): discount gamma^k; delta = 1 only at a true terminal (arrival, collision), not at the time limit
+    # Eq. (9): discount gamma^k; delta = 1 only at a true terminal (arrival, collision), not at the time limit;
+    # a terminal on the step the time runs out (both flags true) is a terminal all the same
     return r_T, gamma**k, float(terminated)
 
 
