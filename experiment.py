@@ -20,6 +20,7 @@ import json
 import multiprocessing as mp
 import multiprocessing.connection
 import os
+import platform
 import shutil
 import signal
 import subprocess
@@ -450,6 +451,15 @@ def env_config(args) -> EnvConfig:
     return EnvConfig(scenario=args.scenario, **traffic)
 
 
+def machine() -> str:
+    """The CPU this run is on: a seed repeats itself bit for bit on one CPU type only (float kernels differ)."""
+    try:
+        model = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
+    except (OSError, StopIteration):
+        model = platform.processor() or "unknown CPU"
+    return f"{model}, {os.cpu_count()} cores, {platform.machine()}, torch {torch.__version__}"
+
+
 def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -496,7 +506,10 @@ def main(argv=None):
     print(table(results))
     if "beta_minus" in results[0]:
         print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
-    (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code, rows=results)))
+    if args.algo != "lattice-idm" and not args.load:  # the trained row's gradient updates: {"actor": n, "timing": n}
+        results[0]["updates"] = dict(trainer.updates)
+    (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code,
+                                                        machine=machine(), rows=results)))
     print(f"wrote {args.out / 'eval.json'}")
     shutil.rmtree(keep, ignore_errors=True)
 
