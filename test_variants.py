@@ -7,19 +7,8 @@ import torch
 import experiment
 import tarl
 import variants
-from tarl import OBS_DIM, EnvConfig, SACConfig, TrainConfig
-
-SMALL_SAC = SACConfig(batch_size=32, buffer_size=5_000, learning_starts=100, hidden=32)
-SMALL = TrainConfig(steps=900, sac_fraction=0.2, n_timing=5, n_actor=15, timing_pretrain=0.1,
-                    timing_learning_starts=10, log_every=10**9, checkpoint_every=10**9)
-QUIET = dict(log=lambda *a: None)
-
-
-@pytest.fixture(scope="module")
-def env():
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
-    yield env
-    env.close()
+from tarl import OBS_DIM
+from test_train import QUIET, SMALL, SMALL_SAC, env  # noqa: F401 (env: the fixture, the intersection)
 
 
 def fill(trainer, n: int, collisions=()):
