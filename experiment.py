@@ -356,6 +356,17 @@ DEFAULTS = dict(steps=TrainConfig.steps, eval_rounds=10, eval_cases=200)  # Tabl
 PRESETS = {"lab": dict(steps=30_000, eval_rounds=2, eval_cases=50)}  # a curve and a short evaluation in a class
 
 
+def timing_error(spec: str, algo: str) -> str | None:
+    """What is wrong with --timing SPEC for a loaded actor of --algo ALGO (timing_override), or None."""
+    name, eq, value = spec.partition("=")
+    if name not in ("learned", "phased", "random", "fixed", "cap") or (name in ("fixed", "cap")) != bool(eq) \
+            or (eq and not (value.isdigit() and int(value) >= 1)):
+        return f"{spec}: choose learned, phased, random, fixed=T or cap=T with T >= 1"
+    if name in ("learned", "phased", "cap") and ROWS[algo].timing not in ("taker", "phased"):
+        return f"{name} needs a timing taker: --algo {algo} has none"
+    return None
+
+
 def parse_args(argv=None):
     """The command line, all of it checked before any work: a bad value is one line, not a late traceback."""
     p = argparse.ArgumentParser(prog="tarl.py", description="Train timing-aware RL (or a baseline) in SUMO, then "
@@ -407,14 +418,10 @@ def parse_args(argv=None):
     if args.t_max is not None and (args.t_max < 1 or args.load or args.resume):
         p.error("--t-max sets the T_max of a new run (at least 1); a checkpoint keeps its own")
     if args.timing is not None:
-        name, eq, value = args.timing.partition("=")
-        if name not in ("learned", "phased", "random", "fixed", "cap") or (name in ("fixed", "cap")) != bool(eq) \
-                or (eq and not (value.isdigit() and int(value) >= 1)):
-            p.error(f"--timing {args.timing}: choose learned, phased, random, fixed=T or cap=T with T >= 1")
         if not args.load or ROWS[args.algo].trainer is None:
             p.error("--timing changes how a loaded actor is timed: give it --load CKPT of a learned row")
-        if name in ("learned", "phased", "cap") and ROWS[args.algo].timing not in ("taker", "phased"):
-            p.error(f"--timing {name} needs a timing taker: --algo {args.algo} has none")
+        if error := timing_error(args.timing, args.algo):
+            p.error(f"--timing {error}")
     if args.step_one is not None and (not ROWS[args.algo].step_one or args.load):
         p.error(f"--step-one sets Alg. 1's step 1 of a run to train: --algo {args.algo} has none, or --load was given")
     if args.step_one is not None and not 0 < args.step_one < args.steps:

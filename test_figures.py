@@ -45,6 +45,9 @@ def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path)
     np.testing.assert_allclose(ep["beta"], tarl.beta(ep["T"], omega=tarl.TimingConfig().omega))
     np.testing.assert_allclose(ep["a_bar"], tarl.blend(ep["a"], ep["a_base"], ep["beta"]), atol=1e-12)
     assert len(ep["frames"]) == len(ep["ego"]) == len(ep["plan"]) == n + 1
+    # each frame is env.snapshot() (scene.py draws it) with who drove the step from it: the rollout's T and beta
+    assert [f["beta"] for f in ep["frames"][:n]] == ep["beta"].tolist() and [f["T"] for f in ep["frames"][:n]] == ep["T"].tolist()
+    np.testing.assert_allclose([f["ego"] for f in ep["frames"]], ep["ego"])
     # the scene holds every vehicle: among them, the rollout's (those within d_max of the ego)
     for k in range(n):
         seen, every = ep["others"][k], ep["frames"][k]["vehicles"]

@@ -23,8 +23,8 @@ UNSCALED = "For Box action spaces, we recommend using a symmetric and normalized
 def test_gymnasiums_checker_passes(env_id):
     env = gymnasium.make(env_id, render_mode="rgb_array")
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=f".*{UNSCALED}")
         warnings.simplefilter("error")  # any other warning of the checker fails the test
+        warnings.filterwarnings("ignore", message=f".*{UNSCALED}")  # (the filter added last is tried first)
         check_env(env.unwrapped)  # seeding, spaces, step and reset types and determinism, rendering
     env.close()
 

@@ -328,6 +328,7 @@ class DrivingEnv(gymnasium.Env):
         sim.vehicle.subscribeContext(EGO, V.CMD_GET_VEHICLE_VARIABLE, c.perception,
                                      [V.VAR_POSITION, V.VAR_SPEED, V.VAR_ANGLE])
         self.ego_alive, self.t_spawn, self.accel, self.waited, self._headings = True, sim.simulation.getTime(), 0.0, 0.0, {}
+        self.shown = (None, None)  # who drives: nobody has said yet (show)
         if self.gui:  # follow the ego at a readable zoom [%]
             sim.gui.setSchema("View #0", "tarl")
             sim.gui.trackVehicle("View #0", EGO)
@@ -683,7 +684,7 @@ class DrivingEnv(gymnasium.Env):
         xyh = np.array([(*sim.vehicle.getPosition(v), math.radians(90.0 - sim.vehicle.getAngle(v))) for v in ids]
                        or np.zeros((0, 3)))
         xyh[:, :2] = centre(xyh[:, :2], xyh[:, 2], c.length)
-        T, beta = getattr(self, "shown", (None, None))
+        T, beta = self.shown
         return dict(t=sim.simulation.getTime() - self.t_spawn, v=self.v, ego=np.array([*self.xy, self.heading]), ids=ids,
                     vehicles=xyh, game={h: ("cross", "yield")[k] for h, k in self.decisions.items()}, s=float(self.s),
                     zone=int(np.argmax(self.obs[3:6])), plan=self.plan_xy(), T=T, beta=beta, length=c.length,
@@ -694,6 +695,8 @@ class DrivingEnv(gymnasium.Env):
         if self.render_mode is None:
             gymnasium.logger.warn("render() without a render_mode: make the env with render_mode='rgb_array'")
             return None
+        if not hasattr(self, "task"):
+            raise RuntimeError("render() before the first reset(): there is no scene yet")
         import scene  # matplotlib loads only when something is drawn
         self._renderer = self._renderer or scene.Renderer(self.net_file)
         return self._renderer.frame(self.snapshot())

@@ -29,10 +29,12 @@ beta      Sec. 5.5: 1 - beta over all steps and in the last 3 s and 1 s before c
 constraint  The safe-RL rows (baselines.py): J_c against the limit d, and lambda, over training steps from
           RUNS/SCENARIO-ALGO-sSEED/constraint_log.csv; a markdown table of what lambda did per run.
 
-The snapshots: --window m square (120 m), centred on the junction and moved, where needed, just enough
-to keep the ego 10 m inside; every vehicle in SUMO, not only the ones the ego perceives: those within
-d_max = 60 m of the ego (Eq. (27)) in grey, the rest in light grey; the humans in the level-k game
-with the ego outlined in the colour of their choice (cross or yield).
+The snapshots (drawn by scene.py, as DrivingEnv.render() and bench/video.py draw them): --window m square
+(120 m), centred on the junction and moved, where needed, just enough to keep the ego 10 m inside; every
+vehicle in SUMO, not only the ones the ego perceives: those within d_max = 60 m of the ego (Eq. (27)) in
+grey, the rest in light grey; the humans in the level-k game with the ego outlined in the colour of their
+choice (cross or yield); the ego in the colour of who drives the step: the actor (beta = 1), the planner
+(beta = 0), or between them by beta.
 """
 from __future__ import annotations
 
@@ -61,6 +63,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import baselines  # noqa: E402
 import experiment  # noqa: E402
+import scene  # noqa: E402
 import tarl  # noqa: E402
 import world  # noqa: E402
 from table3 import ABLATIONS, NAMES, ROWS, SCENARIOS  # noqa: E402
@@ -74,10 +77,9 @@ COLORS = {"tarl": "#d62728", "sac": "#1f77b4", "sac-lattice": "#2ca02c", "sac-la
 # Sec. 5.5 of the paper: mean 1 - beta over all steps, within 3 s and 1 s before a collision
 PAPER_BETA_MINUS = {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
 RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)(?:-(?P<budget>\d+k))?$")  # bench/table3.py
-ACTOR, BASE, EXECUTED, TIMING = "#1f77b4", "#2ca02c", "#ff7f0e", "#6a3d9a"  # Fig. 6's colours
+ACTOR, BASE, EXECUTED, TIMING = scene.ACTOR, scene.PLANNER, "#ff7f0e", "#6a3d9a"  # Fig. 6's colours
 DPI = 130
 MIN_EPISODES = 3  # a training-curve bin with fewer real episodes is left blank (one episode is not a rate)
-GAME_COLORS = {world.CROSS: "#d95f02", world.YIELD: "#1b9e77"}  # edges of the humans in the game with the ego
 
 
 def fail(message: str):
@@ -231,8 +233,8 @@ def save(fig, out: Path):
 
 
 class Watch:
-    """A driver that also keeps, at each of its decisions, every vehicle in SUMO and the ego's zone: the
-    rollout's record has only the vehicles within d_max of the ego. It acts exactly as its driver."""
+    """A driver that also keeps, at each of its decisions, the scene (env.snapshot(): every vehicle in SUMO,
+    not only the rollout's within d_max of the ego) with the T and beta it chose. It acts exactly as its driver."""
 
     def __init__(self, driver: tarl.Driver):
         self.driver, self.frames = driver, []
@@ -240,58 +242,15 @@ class Watch:
     def new_episode(self, seed=None):
         self.driver.new_episode(seed)
 
-    def act(self, obs, env, deterministic=False, a=None):
-        self.frames.append(scene(env, obs))
-        return self.driver.act(obs, env, deterministic, a)
-
-
-def scene(env: tarl.DrivingEnv, obs) -> dict:
-    """Every vehicle but the ego: ids, centre x, y [m], heading [rad]; the ego's h2 zone (0 entry, 1
-    conflict area, 2 exit) from obs[3:6], its arc length s [m] along its path, and the humans now in the
-    level-k game with it: id -> world.CROSS or world.YIELD."""
-    sim, L = env.sim, env.cfg.length
-    ids = [v for v in sim.vehicle.getIDList() if v != world.EGO]
-    xyh = np.zeros((len(ids), 3))
-    for i, v in enumerate(ids):
-        (x, y), h = sim.vehicle.getPosition(v), math.radians(90.0 - sim.vehicle.getAngle(v))
-        xyh[i] = x - 0.5 * L * math.cos(h), y - 0.5 * L * math.sin(h), h  # SUMO's position is the front bumper
-    return dict(ids=ids, vehicles=xyh, zone=int(np.argmax(obs[3:6])), s=float(env.s), game=dict(env.decisions))
-
-
-def network(env: tarl.DrivingEnv) -> dict:
-    """The road network as SUMO has it: every lane's shape [m], width [m] and whether it is internal
-    (inside a junction); the outlines of the junctions."""
-    sim = env.sim
-    return {"lanes": [(np.asarray(sim.lane.getShape(lane), dtype=float), sim.lane.getWidth(lane), lane.startswith(":"))
-                      for lane in sim.lane.getIDList()],
-            "junctions": [np.asarray(sim.junction.getShape(j), dtype=float) for j in sim.junction.getIDList()
-                          if not j.startswith(":") and len(sim.junction.getShape(j)) >= 3]}
-
-
-def lane_polygon(shape: np.ndarray, width: float) -> np.ndarray:
-    """The lane's area: its polyline widened by width / 2 to both sides."""
-    keep = np.r_[True, np.hypot(*np.diff(shape, axis=0).T) > 1e-6]
-    p = shape[keep]
-    if len(p) < 2:
-        return np.zeros((0, 2))
-    d = np.diff(p, axis=0)
-    n = np.c_[-d[:, 1], d[:, 0]] / np.hypot(d[:, 0], d[:, 1])[:, None]
-    vn = np.vstack([n[:1], n[:-1] + n[1:], n[-1:]])
-    vn /= np.maximum(np.hypot(vn[:, 0], vn[:, 1]), 1e-9)[:, None]
-    return np.vstack([p + vn * width / 2, (p - vn * width / 2)[::-1]])
-
-
-def boxes(xyh: np.ndarray, length: float, width: float) -> np.ndarray:
-    """(M, 3) centre x, y, heading -> (M, 4, 2) the corners of length x width rectangles."""
-    xyh = np.atleast_2d(xyh)
-    local = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length / 2, width / 2]
-    c, s = np.cos(xyh[:, 2]), np.sin(xyh[:, 2])
-    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], 1)  # (M, 2, 2)
-    return xyh[:, None, :2] + np.einsum("mij,kj->mki", rot, local)
+    def act(self, obs, env: tarl.DrivingEnv, deterministic=False, a=None):
+        a, T, b = self.driver.act(obs, env, deterministic, a)
+        self.frames.append({**env.snapshot(), "T": T, "beta": b})  # who drives the step from this state
+        return a, T, b
 
 
 def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
-    """The row's driver: Lattice-IDM, or the checkpoint's networks (loaded before any simulation)."""
+    """The row's driver: Lattice-IDM, or the checkpoint's networks (loaded before any simulation), timed as
+    args.timing says if it is given (experiment.timing_override: learned, phased, random, fixed=T, cap=T)."""
     if args.algo == "lattice-idm":
         return tarl.Driver("planner"), name("lattice-idm")
     if args.load is None:
@@ -303,29 +262,34 @@ def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
         trainer.load(state, resume=False)
     except (RuntimeError, KeyError, AttributeError) as e:
         fail(f"cannot load {args.load} as --algo {args.algo}: {str(e).splitlines()[0][:200]}")
-    return trainer.driver, f"{name(args.algo)} ({state['step']:,} training steps)"
+    label = f"{name(args.algo)} ({state['step']:,} training steps)"
+    if getattr(args, "timing", None):
+        return experiment.timing_override(args.timing, trainer), f"{label}, timing {args.timing}"
+    return trainer.driver, label
 
 
-def replay(env: tarl.DrivingEnv, driver: tarl.Driver, seed: int, round_: int, case: int) -> dict:
-    """Test case `case` of round `round_` as experiment.play_round plays it (a case is the same episode whether
-    played alone or within its round). Returns the rollout's record, the scene at each decision (Watch)
-    and, as one more frame, the state the episode ended in."""
+def replay(env: tarl.DrivingEnv, drivers: list[tarl.Driver], seed: int, round_: int, case: int) -> list[dict]:
+    """Test case `case` of round `round_` played by each driver as experiment.play_round plays it (a case is
+    the same episode whether played alone or within its round). Per driver, the rollout's record with
+    "frames": the scene at each decision (Watch) and, as one more frame, the state the episode ended in."""
     progress(f"recording test cases 0-{case} of round {round_} (seed {experiment.test_seed(seed, round_)}): "
              f"{env.cfg.warmup + (case + 1) * env.cfg.case_gap:,.0f} s of traffic")
-    t0 = time.time()
+    t0, episodes = time.time(), []
     with tempfile.TemporaryDirectory() as folder:
         cases = env.record_cases(experiment.test_seed(seed, round_), case + 1, folder)
-        watch = Watch(driver)
-        ep = experiment.rollout(env, watch, {"case": cases[case]}, record=True)
-        # the episode's last state: env keeps the ego's and the others' from its last step, SUMO the rest
-        ep["frames"] = watch.frames + [scene(env, env.obs)]
-        ep["ego"] = np.vstack([ep["ego"], [*env.xy, env.heading]])
-        ep["others"] = ep["others"] + [env.others[:, [0, 1, 3]].copy()]
-        ep["plan"] = ep["plan"] + [env.plan_xy()]
-        ep["v_frames"] = np.append(ep["v"], env.v)
-        ep["net"] = network(env)
-    progress(f"  case {case}: {ep['outcome']} after {ep['steps']} steps [{time.time() - t0:.0f} s]")
-    return ep
+        for driver in drivers:
+            watch = Watch(driver)
+            ep = experiment.rollout(env, watch, {"case": cases[case]}, record=True)
+            # the episode's last state, driven into by the last step's T and beta
+            last = {**env.snapshot(), "T": watch.frames[-1]["T"], "beta": watch.frames[-1]["beta"]}
+            ep["frames"] = watch.frames + [last]
+            ep["ego"] = np.vstack([ep["ego"], last["ego"]])
+            ep["others"] = ep["others"] + [env.others[:, [0, 1, 3]].copy()]
+            ep["plan"] = ep["plan"] + [last["plan"]]
+            ep["net"] = scene.network(env.net_file)
+            progress(f"  case {case}: {ep['outcome']} after {ep['steps']} steps [{time.time() - t0:.0f} s]")
+            episodes.append(ep)
+    return episodes
 
 
 def snapshot_frames(ep: dict, until_collision: bool) -> tuple[list[int], int]:
@@ -339,7 +303,8 @@ def snapshot_frames(ep: dict, until_collision: bool) -> tuple[list[int], int]:
 
 def partner(ep: dict, cfg: tarl.EnvConfig) -> str | None:
     """The vehicle the ego collided with: one overlapping it in the last frame, else the nearest."""
-    f, ego = ep["frames"][-1], ep["ego"][-1]
+    f = ep["frames"][-1]
+    ego = f["ego"]
     if not f["ids"]:
         return None
     xy, h = f["vehicles"][:, :2], f["vehicles"][:, 2]
@@ -358,38 +323,19 @@ def draw_case(ep: dict, cfg: tarl.EnvConfig, title: str, out: Path, window: floa
     fig = plt.figure(figsize=(17, 11))
     gs = fig.add_gridspec(3, len(frames), height_ratios=[3.3, 2.0, 1.4], hspace=0.32, wspace=0.12,
                           left=0.055, right=0.985, top=0.84, bottom=0.06)
-    # the junction: the bounding box of the internal lanes
-    lanes = ep["net"]["lanes"]
-    inner = np.vstack([shape for shape, _, internal in lanes if internal])
-    centre = (inner.min(0) + inner.max(0)) / 2
-    roads = [lane_polygon(shape, w) for shape, w, internal in lanes if not internal]
-    junction = [lane_polygon(shape, w) for shape, w, internal in lanes if internal] + ep["net"]["junctions"]
-    half, margin = window / 2, 10.0
+    centre, half = scene.junction_centre(ep["net"]), window / 2
     for i, k in enumerate(frames):
         ax = fig.add_subplot(gs[0, i])
-        ego, f = ep["ego"][k], ep["frames"][k]
-        # a window of `window` m centred on the junction, moved just enough to keep the ego inside
-        c = np.clip(centre, ego[:2] - (half - margin), ego[:2] + (half - margin))
-        ax.add_collection(PolyCollection([p for p in roads if len(p)], facecolor="#e6e6e6", edgecolor="#bdbdbd", lw=0.5))
-        ax.add_collection(PolyCollection([p for p in junction if len(p)], facecolor="#e6e6e6", edgecolor="none"))
-        if len(f["ids"]):
-            near = np.hypot(*(f["vehicles"][:, :2] - ego[:2]).T) <= cfg.perception
-            corners = boxes(f["vehicles"], cfg.length, cfg.width)
-            ax.add_collection(PolyCollection(corners[~near], facecolor="#d0d0d0", edgecolor="#a0a0a0", lw=0.5))
-            ax.add_collection(PolyCollection(corners[near], facecolor="#8c8c8c", edgecolor="#404040", lw=0.6))
-            # the humans in the level-k game with the ego: an edge in the colour of their choice
-            for choice, color in GAME_COLORS.items():
-                mine = [f["game"].get(vid) == choice for vid in f["ids"]]
-                ax.add_collection(PolyCollection(corners[mine], facecolor="none", edgecolor=color, lw=1.8, zorder=3))
-            if culprit in f["ids"]:
-                j = f["ids"].index(culprit)
-                ax.add_collection(PolyCollection(corners[j:j + 1], facecolor="none", edgecolor="k", lw=2.2, zorder=3))
-                ax.text(*(f["vehicles"][j, :2] + 3.5), culprit, fontsize=9, fontweight="bold", clip_on=True, zorder=6,
-                        bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
-        plan = ep["plan"][k]
-        ax.plot(plan[:, 0], plan[:, 1], color="#d62728", lw=1.6, alpha=0.9, zorder=4)
-        ax.add_collection(PolyCollection(boxes(ego, cfg.length, cfg.width), facecolor="#e41a1c", edgecolor="#7f0000",
-                                         lw=0.8, zorder=5))
+        f = ep["frames"][k]
+        c = scene.view_centre(centre, f["ego"][:2], window)  # centred on the junction, moved to keep the ego inside
+        scene.draw_network(ax, ep["net"])
+        scene.Layers(ax).update(f)
+        if culprit in f["ids"]:
+            j = f["ids"].index(culprit)
+            ax.add_collection(PolyCollection(scene.boxes(f["vehicles"][j], cfg.length, cfg.width), facecolor="none",
+                                             edgecolor="k", lw=2.2, zorder=3))
+            ax.text(*(f["vehicles"][j, :2] + 3.5), culprit, fontsize=9, fontweight="bold", clip_on=True, zorder=6,
+                    bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
         ax.set_aspect("equal")
         ax.set_xticks(np.arange(-400, 401, 40))
         ax.set_yticks(np.arange(-400, 401, 40))
@@ -397,22 +343,23 @@ def draw_case(ep: dict, cfg: tarl.EnvConfig, title: str, out: Path, window: floa
         ax.set_ylim(c[1] - half, c[1] + half)
         ax.tick_params(labelsize=8)
         where = ("entry road", "conflict area", "exit road")[f["zone"]]
-        ax.set_title(f"({i + 1}) t = {k * dt:.1f} s, v = {ep['v_frames'][k]:.1f} m/s\n{where}"
+        ax.set_title(f"({i + 1}) t = {k * dt:.1f} s, v = {f['v']:.1f} m/s\n{where}"
                      + (", collision" if ep["outcome"] == "collision" and k == len(ep["frames"]) - 1 else ""),
                      fontsize=10)
         if i == 0:
             ax.set_ylabel("y [m]")
         ax.set_xlabel("x [m]", fontsize=9)
-    legend = [Patch(facecolor="#e41a1c", edgecolor="#7f0000", label="ego (5 x 2 m)"),
-              Line2D([], [], color="#d62728", lw=1.6, label="base planner's planned trajectory"),
-              Patch(facecolor="#8c8c8c", edgecolor="#404040", label=f"other vehicle within {cfg.perception:.0f} m of the ego"),
-              Patch(facecolor="#d0d0d0", edgecolor="#a0a0a0", label="other vehicle beyond")]
-    legend += [Patch(facecolor="#8c8c8c", edgecolor=GAME_COLORS[world.CROSS], lw=1.8,
-                     label="in the level-k game with the ego: crosses"),
-               Patch(facecolor="#8c8c8c", edgecolor=GAME_COLORS[world.YIELD], lw=1.8, label="... yields")]
+    ego = lambda beta: dict(facecolor=scene.ego_color(beta), edgecolor=tuple(0.5 * np.array(scene.ego_color(beta))))  # noqa: E731
+    legend = [Patch(**ego(1.0), label="ego (5 x 2 m): the actor drives"), Patch(**ego(0.0), label="... the planner drives"),
+              Patch(**ego(0.5), label=r"... between: the blend, by $\beta$"),
+              Line2D([], [], color=scene.PLAN, lw=1.6, label="base planner's planned trajectory"),
+              Patch(facecolor=scene.NEAR, edgecolor=scene.NEAR_EDGE, label=f"other vehicle within {cfg.perception:.0f} m of the ego"),
+              Patch(facecolor=scene.FAR, edgecolor=scene.FAR_EDGE, label="other vehicle beyond")]
+    legend += [Patch(facecolor=scene.NEAR, edgecolor=scene.GAME["cross"], lw=1.8, label="in the level-k game with the ego: crosses"),
+               Patch(facecolor=scene.NEAR, edgecolor=scene.GAME["yield"], lw=1.8, label="... yields")]
     if culprit:
-        legend.append(Patch(facecolor="#8c8c8c", edgecolor="k", lw=2.2, label=f"the vehicle it collided with ({culprit})"))
-    fig.legend(handles=legend, loc="upper center", ncol=4, frameon=False, bbox_to_anchor=(0.5, 0.93), fontsize=10)
+        legend.append(Patch(facecolor=scene.NEAR, edgecolor="k", lw=2.2, label=f"the vehicle it collided with ({culprit})"))
+    fig.legend(handles=legend, loc="upper center", ncol=5, frameon=False, bbox_to_anchor=(0.5, 0.93), fontsize=10)
 
     # the actions, then the timing, over time
     ax_a = fig.add_subplot(gs[1, :])
@@ -483,7 +430,7 @@ def case(args):
     env = tarl.DrivingEnv(cfg)
     try:
         driver, label = make_driver(args, env)
-        ep = replay(env, driver, args.seed, args.round, args.case)
+        ep, = replay(env, [driver], args.seed, args.round, args.case)
     finally:
         env.close()
     out = args.out or ROOT / "results" / f"fig6_{args.scenario}.png"
@@ -526,7 +473,7 @@ def failure(args):
         driver, label = make_driver(args, env)
         progress(f"{args.algo}'s collision #{args.pick}: round {crash['round']} case {crash['case']} "
                  f"({crash['steps']} steps, start {crash['start']})")
-        ep = replay(env, driver, seed, crash["round"], crash["case"])
+        ep, = replay(env, [driver], seed, crash["round"], crash["case"])
     finally:
         env.close()
     if ep["start"] != crash["start"]:

@@ -14,7 +14,9 @@
 (b) Environment steps per second on each scenario: bare SUMO stepping (simulationStep alone, the
     humans still spawning, no ego) against the full environment step (SUMO, its queries, the
     observation, the base planner, the level-k game, the collision check); the time SUMO's step
-    takes inside the full step, and the rest: the project's own work per step.
+    takes inside the full step, and the rest: the project's own work per step. Beside them, in the
+    same blocks, the cost of a frame: env.render() (render_mode "rgb_array", 480 x 480 px, scene.py)
+    after each full step, its snapshot of the scene included, also as a ratio to an env step.
 (c) Base-planner calls per second on the states met in (b), and candidates per call.
 (d) Training steps per second: Algorithm 1 on the roundabout, in step 1 (plain SAC, one update
     per step) and in the imagination + actor loops (an update per actor step and per timing
@@ -136,10 +138,11 @@ def env_section(scenario, rounds, k, seed=1) -> tuple[dict, list]:
     the humans spawning as before; the next full block puts a new ego in. Returns the numbers and
     the planner's inputs met in the full blocks.
     """
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
+    env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario), render_mode="rgb_array")
     sim, L = env.sim, env.cfg.length
     env.reset(seed=seed)
-    full_t = bare_t = sumo_in_full = 0.0
+    frame = env.render()  # the renderer, made once: its background is drawn here, not in the frames timed
+    full_t = bare_t = sumo_in_full = render_t = 0.0
     full_n = bare_n = 0
     full_veh, bare_veh, states = [], [], []
     step_sumo = sim.simulationStep
@@ -165,6 +168,9 @@ def env_section(scenario, rounds, k, seed=1) -> tuple[dict, list]:
                 full_t += time.perf_counter() - start
                 full_n += 1
                 full_veh.append(sim.vehicle.getIDCount())
+                start = time.perf_counter()
+                env.render()  # a frame of the state the step left (after an episode's end, its last state)
+                render_t += time.perf_counter() - start
                 if term or trunc:
                     env.reset()
         finally:
@@ -180,8 +186,10 @@ def env_section(scenario, rounds, k, seed=1) -> tuple[dict, list]:
         env.reset()
     env.close()
     full_ms, bare_ms, sumo_ms = 1e3 * full_t / full_n, 1e3 * bare_t / bare_n, 1e3 * sumo_in_full / full_n
+    render_ms = 1e3 * render_t / full_n
     return dict(env_steps_per_s=1e3 / full_ms, sumo_raw_steps_per_s=1e3 / bare_ms, env_to_raw_ratio=bare_ms / full_ms,
-                env_ms=full_ms, sumo_in_env_ms=sumo_ms, own_ms=full_ms - sumo_ms,
+                env_ms=full_ms, sumo_in_env_ms=sumo_ms, own_ms=full_ms - sumo_ms, render_ms=render_ms,
+                render_to_env_ratio=render_ms / full_ms, render_px=list(frame.shape[:2]),
                 vehicles_full=float(np.mean(full_veh)), vehicles_bare=float(np.mean(bare_veh))), states
 
 
@@ -292,6 +300,10 @@ def table(r) -> str:
                  f" {e['env_steps_per_s']:.0f} /s ({e['env_ms']:.2f} ms: SUMO {e['sumo_in_env_ms']:.2f},"
                  f" own work {e['own_ms']:.2f}) | bare SUMO {e['sumo_raw_steps_per_s']:.0f} /s |"
                  f" {e['env_to_raw_ratio']:.2f}x |")
+    for sc in ("intersection", "roundabout"):
+        e = r["env"][sc]
+        s.append(f"| frame, {sc}: env.render(), {e['render_px'][1]} x {e['render_px'][0]} px | {e['render_ms']:.2f} ms"
+                 f" ({1e3 / e['render_ms']:.0f} /s) | env step {e['env_ms']:.2f} ms | {e['render_to_env_ratio']:.1f} env steps |")
     s.append(f"| base planner, {r['planner_candidates']} candidates | {r['planner_calls_per_s']:.0f} calls/s"
              f" ({r['planner_ms_mean']:.3f} ms mean, {r['planner_ms_p99']:.3f} ms p99) | | |")
     s.append(f"| training, Alg. 1 step 1 ({r['train_sac_updates_per_step']:.2f} updates/step) |"
