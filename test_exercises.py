@@ -198,7 +198,9 @@ def test_in_vivo_passes_on_a_solution_and_names_the_first_case_a_wrong_answer_ch
     wrong = check.load(HERE / "exercises" / "wrong" / "ex1_dt_T_swapped.py")
     assert not in_vivo.run("1", wrong, "a wrong answer", cases=3, log=said.append)
     report = "\n".join(said)
-    assert "FAIL  case 0: collision" in report and "with only your beta in tarl.beta's place, case 0 differs too" in report, report
+    # which way case 0 goes depends on the shipped policy; what matters: case 0 is the first case named, and beta
+    assert "FAIL  case 0: " in report and "Case 0 is the first of 3 that differs" in report, report
+    assert "with only your beta in tarl.beta's place, case 0 differs too" in report, report
     assert (tarl.beta, tarl.blend) == (beta, blend)  # restored
 
 
