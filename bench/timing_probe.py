@@ -28,9 +28,11 @@ observation must equal the recorded one bit for bit, and the "original" branch m
     python bench/timing_probe.py --report                 # summary.md and ranking.png from the JSONs
     python bench/timing_probe.py --scenario intersection --critic runs/critic/intersection-tarl-s0/ckpt.pt
                                                           # and the timing taker's Q(s, a, T) at the same states
+    python bench/timing_probe.py --scenario roundabout --algo tarl-actor-target   # a variant's own policy, then
+    python bench/timing_probe.py --scenario roundabout --algo tarl-actor-target --critic runs/grid/roundabout-tarl-actor-target-s0/ckpt.pt
 
-Writes results/timing_probe/{scenario}.json (every branch), summary.md and ranking.png (both scenarios'
-JSONs, whichever exist).
+Writes results/timing_probe/{scenario}.json (every branch; {scenario}-{algo}.json for a variant of --algo),
+summary.md and ranking.png (every JSON there).
 """
 from __future__ import annotations
 
@@ -58,12 +60,13 @@ WINDOW = 3.0  # [s] before a collision: Sec. 5.5's window
 OUTCOMES = ("arrival", "collision", "timeout")
 
 
-def load_tarl(env: tarl.DrivingEnv, scenario: str, path: Path | None = None):
-    """The shipped seed-0 TARL policy: trainer.driver (learned timing), .actor, .timing_taker."""
-    path = path or ROOT / "results" / "runs" / f"{scenario}-tarl-s0" / "policy.pt"
-    state = experiment.load_checkpoint(path, scenario, "tarl")
+def load_tarl(env: tarl.DrivingEnv, scenario: str, path: Path | None = None, algo: str = "tarl"):
+    """The shipped seed-0 policy of TARL (or of a variant with a timing taker, --algo): trainer.driver (learned
+    timing), .actor, .timing_taker."""
+    path = path or ROOT / "results" / "runs" / f"{scenario}-{algo}-s0" / "policy.pt"
+    state = experiment.load_checkpoint(path, scenario, algo)
     tc = tarl.TrainConfig(timing=experiment.checkpoint_timing(state))
-    trainer = experiment.make_trainer("tarl", env, tc, 0, None, lambda *a: None, state=state)
+    trainer = experiment.make_trainer(algo, env, tc, 0, None, lambda *a: None, state=state)
     trainer.load(state, resume=False)
     return trainer
 
@@ -133,14 +136,14 @@ def branch_record(res: dict, **keys) -> dict:
 
 
 def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases: int, crash_every: int,
-          t_max: int | None = None, log=print, critic: Path | None = None) -> dict:
+          t_max: int | None = None, log=print, critic: Path | None = None, algo: str = "tarl") -> dict:
     """Every branch of every state of `scenario`, with the wall time and the settings. critic: a ckpt.pt of the
     shipped run (policy.pt holds no critic): the states alone, with its timing taker's Q(s, a, T), no branch."""
     t0, env = time.time(), tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
     try:
-        trainer = load_tarl(env, scenario)
+        trainer = load_tarl(env, scenario, algo=algo)
         if critic is not None:
-            full = load_tarl(env, scenario, critic)
+            full = load_tarl(env, scenario, critic, algo)
             for net in ("actor", "timing_taker"):  # the same policies: the states are the shipped run's
                 same = zip(getattr(full, net).policy.state_dict().values(), getattr(trainer, net).policy.state_dict().values())
                 if not all(torch.equal(a, b) for a, b in same):
@@ -156,7 +159,7 @@ def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases:
                                                   crash_every, cfg.dt)]
             log(f"{scenario}: {len(recorded)} cases played ({time.time() - t0:.0f} s), {len(crashed)} collisions "
                 f"used; {len(states)} states x {1 + len(LOOPS) * t_max} branches")
-            out, t1 = dict(scenario=scenario, t_max=t_max, omega=trainer.driver.timing_cfg.omega, gamma=GAMMA,
+            out, t1 = dict(scenario=scenario, algo=algo, t_max=t_max, omega=trainer.driver.timing_cfg.omega, gamma=GAMMA,
                            cases=cases, every=every, crash_cases=crashed, states=[], branches=[]), time.time()
             for i, (c, k, kind) in enumerate(states):
                 ep = episodes[c]
@@ -257,7 +260,7 @@ def markdown(results: list[dict]) -> str:
         n_t, states, agg = res["t_max"], res["states"], aggregate(res["branches"], res["t_max"])
         picks = np.bincount([s["taker_T"] for s in states], minlength=n_t + 1)[1:n_t + 1] / len(states)
         o, pi = agg["original"][0], np.mean([s["taker_pi"] for s in states], 0)[:n_t]
-        lines += [f"## {res['scenario']}", "",
+        lines += [f"## {res['scenario']}" + (f", {res['algo']}" if res.get("algo", "tarl") != "tarl" else ""), "",
                   f"{len(states)} states ({sum(s['kind'] == 'regular' for s in states)} every {res['every']} steps "
                   f"of {res['cases']} test cases, {sum(s['kind'] == 'crash' for s in states)} in the last 3 s "
                   f"before {len(res['crash_cases'])} collisions); TARL's own continuation from them: arrival "
@@ -365,7 +368,7 @@ def figure(results: list[dict], path: Path):
 
 
 def report(out: Path = OUT, log=print):
-    results = [json.loads(p.read_text()) for s in sorted(tarl.SCENARIOS) if (p := out / f"{s}.json").exists()]
+    results = [json.loads(p.read_text()) for s in sorted(tarl.SCENARIOS) for p in sorted(out.glob(f"{s}*.json"))]
     if not results:
         raise SystemExit(f"no results in {out}: run the probe first")
     (out / "summary.md").write_text(markdown(results))
@@ -381,6 +384,9 @@ def main(argv=None):
     p.add_argument("--crash-search", type=int, default=200, help="test cases of round 0 searched for collisions")
     p.add_argument("--crash-cases", type=int, default=4, help="at most this many collisions' last 3 s are branched from")
     p.add_argument("--crash-every", type=int, default=5, help="[steps] between the branch states before a collision")
+    p.add_argument("--algo", default="tarl", choices=[a for a, row in experiment.ROWS.items() if row.timing == "taker"],
+                   help="the row whose shipped seed-0 policy (results/runs/SCENARIO-ALGO-s0/policy.pt) is probed; "
+                        "its JSON is SCENARIO.json for TARL, SCENARIO-ALGO.json for another")
     p.add_argument("--out", type=Path, default=OUT)
     p.add_argument("--report", action="store_true", help="only rewrite summary.md and ranking.png from the JSONs")
     p.add_argument("--critic", type=Path, metavar="CKPT", help="add the timing taker's Q(s, a, T) of this ckpt.pt of "
@@ -391,20 +397,23 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     if args.critic and args.scenario == "both":
         p.error("--critic CKPT is one scenario's run: give --scenario")
+    name = lambda sc: f"{sc}.json" if args.algo == "tarl" else f"{sc}-{args.algo}.json"  # noqa: E731
     if args.critic:
         sc = args.scenario
-        old = json.loads((args.out / f"{sc}.json").read_text())
+        if not (args.out / name(sc)).exists():
+            p.error(f"--critic adds to {args.out / name(sc)}: run the probe of --scenario {sc} --algo {args.algo} first")
+        old = json.loads((args.out / name(sc)).read_text())
         new = probe(sc, old["cases"], old["every"], args.crash_search, len(old["crash_cases"]), args.crash_every,
-                    critic=args.critic)
+                    critic=args.critic, algo=args.algo)
         assert [(s["case"], s["k"], s["taker_pi"]) for s in new["states"]] == \
                [(s["case"], s["k"], s["taker_pi"]) for s in old["states"]], f"{sc}: not the JSON's states"
         old.update(states=new["states"], alpha=new["alpha"])
-        (args.out / f"{sc}.json").write_text(json.dumps(old))
+        (args.out / name(sc)).write_text(json.dumps(old))
     if not args.report and not args.critic:
         for sc in sorted(tarl.SCENARIOS) if args.scenario == "both" else [args.scenario]:
-            res = probe(sc, args.cases, args.every, args.crash_search, args.crash_cases, args.crash_every)
-            (args.out / f"{sc}.json").write_text(json.dumps(res))
-            print(f"{sc}: {len(res['branches'])} branches in {res['wall_s'] / 60:.1f} min -> {args.out / f'{sc}.json'}")
+            res = probe(sc, args.cases, args.every, args.crash_search, args.crash_cases, args.crash_every, algo=args.algo)
+            (args.out / name(sc)).write_text(json.dumps(res))
+            print(f"{sc}: {len(res['branches'])} branches in {res['wall_s'] / 60:.1f} min -> {args.out / name(sc)}")
     report(args.out)
 
 
