@@ -4,7 +4,8 @@ who drives the ego. One piece of drawing code for DrivingEnv.render() (Renderer)
 
     network(net_file)           the lanes and junctions as SUMO has them, read from the .net.xml
     lane_polygon, boxes         a lane's area; vehicles as rectangles of their size and heading
-    ego_color(beta)             the ego's colour: the actor's (beta = 1), the planner's (beta = 0), between
+    ego_color(beta), ego_style  the ego's colour: the actor's (beta = 1), the planner's (beta = 0), between
+    legend_handles              what the colours mean
     draw_network, Layers        the network on an Axes; the moving part of a scene, updated from a snapshot
     Renderer                    (H, W, 3) uint8 frames of snapshots, a few ms each (blitting)
 
@@ -24,6 +25,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PolyCollection
 from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 ROAD, ROAD_EDGE = "#e6e6e6", "#bdbdbd"  # lanes and junction areas
 NEAR, NEAR_EDGE = "#8c8c8c", "#404040"  # other vehicles within d_max of the ego (Eq. (27)): perceived
@@ -103,6 +106,29 @@ def ego_color(beta: float | None) -> tuple[float, float, float]:
     return tuple(b * np.array(to_rgb(ACTOR)) + (1.0 - b) * np.array(to_rgb(PLANNER)))
 
 
+def ego_style(beta: float | None) -> dict:
+    """The ego's face and edge colours by who drives (ego_color), the edge a darker shade of the same hue."""
+    color = ego_color(beta)
+    return dict(facecolor=color, edgecolor=tuple(0.5 * np.array(color)))
+
+
+def legend_handles(perception: float, short: bool = False) -> list:
+    """What the colours of a scene mean, for a legend: the ego by who drives, the planner's path, the other
+    vehicles within d_max [m] of the ego and beyond, the humans in the game by their choice. short: brief labels."""
+    labels = (("ego: the actor drives", "the planner drives", "their blend", "planned path", f"within {perception:.0f} m",
+               "beyond", "in the game: crosses", "yields") if short else
+              ("ego (5 x 2 m): the actor drives", "... the planner drives", r"... between: the blend, by $\beta$",
+               "base planner's planned trajectory", f"other vehicle within {perception:.0f} m of the ego",
+               "other vehicle beyond", "in the level-k game with the ego: crosses", "... yields"))
+    game = 1.5 if short else 1.8  # [pt] the outline of a human in the game
+    return [Patch(**ego_style(1.0), label=labels[0]), Patch(**ego_style(0.0), label=labels[1]),
+            Patch(**ego_style(0.5), label=labels[2]), Line2D([], [], color=PLAN, lw=1.6, label=labels[3]),
+            Patch(facecolor=NEAR, edgecolor=NEAR_EDGE, label=labels[4]),
+            Patch(facecolor=FAR, edgecolor=FAR_EDGE, label=labels[5]),
+            Patch(facecolor=NEAR, edgecolor=GAME["cross"], lw=game, label=labels[6]),
+            Patch(facecolor=NEAR, edgecolor=GAME["yield"], lw=game, label=labels[7])]
+
+
 def driver_text(T, beta) -> str:
     """Who drives, in a few words: "T = 2, beta = 0.50 (blend)", "(actor)" or "(planner)" alone; "the agent" if unknown."""
     if beta is None:
@@ -155,10 +181,10 @@ class Layers:
             layer.set_verts(corners[[snap["game"].get(vid) == choice for vid in snap["ids"]]].reshape(-1, 4, 2))
         plan = np.asarray(snap["plan"], dtype=float).reshape(-1, 2)
         self.plan.set_data(plan[:, 0], plan[:, 1])
-        color = ego_color(snap.get("beta"))
+        style = ego_style(snap.get("beta"))
         self.ego.set_verts(boxes(ego, L, W))
-        self.ego.set_facecolor(color)
-        self.ego.set_edgecolor(tuple(0.5 * np.array(color)))  # a darker edge of the same hue
+        self.ego.set_facecolor(style["facecolor"])
+        self.ego.set_edgecolor(style["edgecolor"])
 
 
 # ---- Frames: blitting onto a background drawn once ----------------------------------------------------

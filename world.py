@@ -4,8 +4,9 @@ Sections 3 and 5.1-5.2 of the paper: an unsignalized intersection or a two-lane 
 (scenarios/), human drivers who follow IDM with Table 1's parameters and play a level-k (k = 2)
 game with the ego at every conflict point, the ego's observation and reward (EnvConfig's
 spawn_gap, svo_range and human_level shift the traffic). DrivingEnv is a Gymnasium environment,
-registered as tarl/Intersection-v0 and tarl/Roundabout-v0; tarl.py learns in it. Equations are cited by the number printed in the paper's PDF
-(PAPER.md maps them to the LaTeX labels and has the notes cited as "PAPER.md, note n").
+registered as tarl/Intersection-v0 and tarl/Roundabout-v0; tarl.py learns in it. Equations are cited
+by the number printed in the paper's PDF (PAPER.md maps them to the LaTeX labels and has the notes
+cited as "PAPER.md, note n").
 
     Eqs. (1)-(2)                  DrivingEnv.step: one SUMO step; SUMO + level-k drivers are xi_t
     Table 1                       SCENARIOS, HUMAN_RANGES, DrivingEnv._spawn_humans
@@ -686,9 +687,9 @@ class DrivingEnv(gymnasium.Env):
         xyh[:, :2] = centre(xyh[:, :2], xyh[:, 2], c.length)
         T, beta = self.shown
         return dict(t=sim.simulation.getTime() - self.t_spawn, v=self.v, ego=np.array([*self.xy, self.heading]), ids=ids,
-                    vehicles=xyh, game={h: ("cross", "yield")[k] for h, k in self.decisions.items()}, s=float(self.s),
+                    vehicles=xyh, game={h: ("cross", "yield")[k] for h, k in self.decisions.items()},
                     zone=int(np.argmax(self.obs[3:6])), plan=self.plan_xy(), T=T, beta=beta, length=c.length,
-                    width=c.width, perception=c.perception, scenario=c.scenario, net_file=str(self.net_file))
+                    width=c.width, perception=c.perception)
 
     def render(self):
         """render_mode "rgb_array": the scene from above as an (H, W, 3) uint8 frame (scene.py draws it)."""

@@ -349,14 +349,7 @@ def draw_case(ep: dict, cfg: tarl.EnvConfig, title: str, out: Path, window: floa
         if i == 0:
             ax.set_ylabel("y [m]")
         ax.set_xlabel("x [m]", fontsize=9)
-    ego = lambda beta: dict(facecolor=scene.ego_color(beta), edgecolor=tuple(0.5 * np.array(scene.ego_color(beta))))  # noqa: E731
-    legend = [Patch(**ego(1.0), label="ego (5 x 2 m): the actor drives"), Patch(**ego(0.0), label="... the planner drives"),
-              Patch(**ego(0.5), label=r"... between: the blend, by $\beta$"),
-              Line2D([], [], color=scene.PLAN, lw=1.6, label="base planner's planned trajectory"),
-              Patch(facecolor=scene.NEAR, edgecolor=scene.NEAR_EDGE, label=f"other vehicle within {cfg.perception:.0f} m of the ego"),
-              Patch(facecolor=scene.FAR, edgecolor=scene.FAR_EDGE, label="other vehicle beyond")]
-    legend += [Patch(facecolor=scene.NEAR, edgecolor=scene.GAME["cross"], lw=1.8, label="in the level-k game with the ego: crosses"),
-               Patch(facecolor=scene.NEAR, edgecolor=scene.GAME["yield"], lw=1.8, label="... yields")]
+    legend = scene.legend_handles(cfg.perception)
     if culprit:
         legend.append(Patch(facecolor=scene.NEAR, edgecolor="k", lw=2.2, label=f"the vehicle it collided with ({culprit})"))
     fig.legend(handles=legend, loc="upper center", ncol=5, frameon=False, bbox_to_anchor=(0.5, 0.93), fontsize=10)

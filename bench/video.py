@@ -38,8 +38,6 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import to_rgb
 from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, MaxNLocator
 from PIL import Image
 
@@ -158,15 +156,9 @@ class Panel:
         return out
 
 
-def legend(width: int, dpi: int = 100) -> np.ndarray:
-    """What the colours mean, and the strips, as wide as the video."""
-    ego = lambda b: dict(facecolor=scene.ego_color(b), edgecolor=tuple(0.5 * np.array(scene.ego_color(b))))  # noqa: E731
-    handles = [Patch(**ego(1.0), label="ego: the actor drives"), Patch(**ego(0.0), label="the planner drives"),
-               Patch(**ego(0.5), label="their blend"), Line2D([], [], color=scene.PLAN, lw=1.6, label="planned path"),
-               Patch(facecolor=scene.NEAR, edgecolor=scene.NEAR_EDGE, label="within 60 m"),
-               Patch(facecolor=scene.FAR, edgecolor=scene.FAR_EDGE, label="beyond"),
-               Patch(facecolor=scene.NEAR, edgecolor=scene.GAME["cross"], lw=1.5, label="in the game: crosses"),
-               Patch(facecolor=scene.NEAR, edgecolor=scene.GAME["yield"], lw=1.5, label="yields")]
+def legend(width: int, perception: float, dpi: int = 100) -> np.ndarray:
+    """What the colours mean (perception: d_max [m]), and the strips, as wide as the video."""
+    handles = scene.legend_handles(perception, short=True)
     ncol = 8 if width >= 900 else 4
     rows = -(-len(handles) // ncol)
     caption = textwrap.fill("strips: \u03b2, the actor's share of the executed action (Eq. (12); 1 - \u03b2 is the "
@@ -256,7 +248,7 @@ def video(args) -> list[dict]:
     renderer = scene.Renderer(env.net_file, size=args.size)
     panels = [Panel(ep, f"{label}: {outcome_text(ep, cfg.dt)}", args.size, cfg.dt, tarl.TimingConfig().t_max)
               for (_, label), ep in zip(drivers, episodes)]
-    key = legend(args.size * len(panels))
+    key = legend(args.size * len(panels), cfg.perception)
     frames = (np.vstack([np.hstack([p.frame(k, renderer.frame(ep["frames"][min(k, ep["steps"])]))
                                     for p, ep in zip(panels, episodes)]), key]) for k in range(n))
     figures.progress(f"rendering {n} frames of round {args.round} case {args.case}")
