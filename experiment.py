@@ -61,6 +61,8 @@ ROWS = {
     "tarl-actor-target": Row("TARL, actor's critic in Eq. (9)", "taker", True, variants.ActorTargetTrainer,
                              timing_updates=0),  # beyond the paper (PAPER.md, 6): a timing update every step instead
     "tarl-rare-replay": Row("TARL, collision replay", "taker", True, variants.RareReplayTrainer),  # beyond the paper
+    "tarl-min-target": Row("TARL, lower of both critics in Eq. (9)", "taker", True, variants.MinTargetTrainer,
+                           timing_updates=0),  # beyond the paper (PAPER.md, 6)
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),

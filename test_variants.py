@@ -45,6 +45,35 @@ def test_actor_target_bootstraps_eq_9_from_the_actors_soft_value(env):
     torch.testing.assert_close(batch["rew"][done == 1], r[done == 1])
 
 
+def test_min_target_bootstraps_eq_9_from_the_lower_of_both_soft_values(env):
+    """y = r_T + gamma^T (1 - delta) min(V_T(s'), V_a(s')), by hand: V_T the expectation over T' of the timing
+    taker's own target critics, V_a one a' ~ pi_a on the actor's; and the lower one is not always the same."""
+    trainer = experiment.make_trainer("tarl-min-target", env, SMALL, seed=1, state=dict(config=dict(sac=vars(SMALL_SAC))), **QUIET)
+    assert isinstance(trainer, variants.ActorTargetTrainer)  # its update every simulator step
+    fill(trainer, 40)
+    idx = np.arange(40)
+    torch.manual_seed(5)
+    plain = tarl.Trainer.timing_batch(trainer, 40, np.random.default_rng(0), idx)
+    x2, s2 = plain["next_obs"], plain["next_obs"][:, :OBS_DIM]
+    a2, log_p = trainer.actor.squashed_gaussian(s2)  # the draw after timing_batch's own a_next, as in the variant
+    with torch.no_grad():
+        v_a = trainer.actor.critic_target(s2, a2).amin(0).squeeze(-1) - trainer.actor.log_alpha.exp() * log_p
+        probs, log_probs = trainer.timing_taker.timing_distribution(x2)
+        q_T = trainer.timing_taker.critic_target(x2).amin(0)
+        v_T = (probs * (q_T - trainer.timing_taker.log_alpha.exp() * log_probs)).sum(-1)
+        shift = (v_T - v_a).median()  # the actor's critics moved so that each V is the lower on about half
+        trainer.actor.critic_target.b3 += shift
+        v_a += shift
+    torch.manual_seed(5)
+    batch = trainer.timing_batch(40, np.random.default_rng(0), idx)
+    r, disc, done = plain["rew"], plain["discount"], plain["done"]
+    torch.testing.assert_close(batch["rew"], r + disc * (1 - done) * torch.minimum(v_T, v_a))
+    assert torch.equal(batch["discount"], torch.zeros(40))
+    live = done == 0
+    assert (v_T < v_a)[live].any() and (v_a < v_T)[live].any()
+    torch.testing.assert_close(batch["rew"][done == 1], r[done == 1])  # terminal: y = r_T alone
+
+
 def test_rare_replay_draws_a_quarter_of_each_batch_from_d_ts_collisions(env):
     trainer = experiment.make_trainer("tarl-rare-replay", env, SMALL, seed=1, state=dict(config=dict(sac=vars(SMALL_SAC))), **QUIET)
     fill(trainer, 200)  # no collision yet: Algorithm 1's uniform batch, the same draws as TARL's
@@ -65,7 +94,7 @@ def test_rare_replay_draws_a_quarter_of_each_batch_from_d_ts_collisions(env):
         assert (batch["done"][crash] == 1).all() and (batch["rew"][crash] == -20).all()
 
 
-@pytest.mark.parametrize("algo", ["tarl-actor-target", "tarl-rare-replay"])
+@pytest.mark.parametrize("algo", ["tarl-actor-target", "tarl-rare-replay", "tarl-min-target"])
 def test_short_runs_of_the_signal_variants_update_count_their_steps_and_reload(algo, env, tmp_path):
     small = dict(config=dict(sac=vars(SMALL_SAC)))
     trainer = experiment.make_trainer(algo, env, SMALL, seed=1, out=tmp_path, state=small, **QUIET)
@@ -76,7 +105,7 @@ def test_short_runs_of_the_signal_variants_update_count_their_steps_and_reload(a
     assert trainer.step == len(ready) >= SMALL.steps  # every simulator step of both loops counts
     assert trainer.updates["actor"] > 50
     decisions = len(trainer.D_T) - SMALL.timing_learning_starts + 1
-    if algo == "tarl-actor-target":  # one timing update per simulator step once D_T is ready, none per decision
+    if algo != "tarl-rare-replay":  # one timing update per simulator step once D_T is ready, none per decision
         assert trainer.updates["timing"] == sum(ready) > decisions
     else:  # Algorithm 1's one per decision
         assert trainer.updates["timing"] == decisions

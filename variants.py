@@ -8,6 +8,7 @@ learns; how it acts (Eqs. (5), (11)-(12)) is the paper's.
 
     tarl-actor-target   ActorTargetTrainer: Eq. (9)'s bootstrap from the actor's critic, an update every step
     tarl-rare-replay    RareReplayTrainer: a quarter of every timing batch drawn from D_T's collisions
+    tarl-min-target     MinTargetTrainer: Eq. (9)'s bootstrap from the lower of both critics, an update every step
 """
 from __future__ import annotations
 
@@ -68,3 +69,30 @@ class RareReplayTrainer(tarl.Trainer):
         k = round(self.RARE_SHARE * batch_size)
         idx = np.concatenate([rng.integers(0, n, batch_size - k), rare[rng.integers(0, len(rare), k)]])
         return super().timing_batch(batch_size, rng, idx)
+
+
+class MinTargetTrainer(ActorTargetTrainer):
+    """TARL whose timing critic bootstraps from the lower of its own soft value and the actor's, updated every step.
+
+    The actor's value alone (ActorTargetTrainer) lowered the intersection's collisions but froze the ego at the
+    roundabout's entry (RESULTS.md, 8): V_a(s_t+T) is the value of the actor driving from s_t+T on, so a long T
+    looks as good as T = 1 wherever the actor's critic is content, and the cost of waiting again and again never
+    reaches the target. The timing taker's own V does carry that cost (8 timing updates stopped the freeze,
+    RESULTS.md, 7) but misses the rare dangers that the actor's critic sees. Eq. (9)'s target takes the lower:
+
+        y = r_T + gamma^T (1 - delta) min(V_T(s_t+T), V_a(s_t+T)),
+
+    V_T the soft value of Eq. (9)'s own target (its target critics, the expectation over T'), V_a that of Eq.
+    (13)'s (one a' ~ pi_a). The lower of two estimates as the target is clipped double Q-learning's device
+    (Fujimoto et al., ICML 2018), here across the two agents. As in ActorTargetTrainer, an update every simulator
+    step.
+    """
+
+    def timing_batch(self, batch_size: int, rng, idx=None) -> dict[str, torch.Tensor]:
+        batch = tarl.Trainer.timing_batch(self, batch_size, rng, idx)
+        own = tarl.td_target(self.timing_taker, batch)  # r_T + gamma^T (1 - delta) V_T(s_t+T)
+        actors = tarl.td_target(self.actor, dict(batch, next_obs=batch["next_obs"][:, :OBS_DIM]))  # ... V_a(s_t+T)
+        # gamma^T (1 - delta) >= 0, so the lower target is the one with the lower V
+        batch["rew"] = torch.minimum(own, actors)
+        batch["discount"] = torch.zeros_like(batch["discount"])  # so that the timing taker's target is y itself
+        return batch
