@@ -40,7 +40,8 @@ from exercises.compare import discordant, matched, read_row  # noqa: E402
 LABELS = {"tarl": "TARL", "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": "TARL, T random",
           "tarl-consistent": "TARL, phased real loop", "tarl-held": "TARL, held imagination",
           "tarl-utd": "TARL, 8 timing updates", "tarl-actor-target": "TARL, actor's critic in Eq. (9)",
-          "tarl-rare-replay": "TARL, collision replay", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
+          "tarl-rare-replay": "TARL, collision replay",
+          "tarl-min-target": "TARL, lower of both critics in Eq. (9)", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
           "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO"}
 HOSTS = ("tarl",)  # runs whose eval.json also holds lattice-idm and tarl-step1 (--eval-rows all)
 
