@@ -3,6 +3,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import speed  # noqa: E402
@@ -153,3 +154,27 @@ def test_table3_a_relative_work_directory_is_the_callers_not_the_repositorys(tmp
                  "--scenarios", "intersection", "--print-commands"])
     out = capsys.readouterr().out.split()
     assert out[out.index("--out") + 1] == str(tmp_path / "cells" / "intersection-sac-s4")
+
+
+import heldout  # noqa: E402
+
+
+def test_heldout_sets_each_row_beside_the_first_case_by_case(tmp_path):
+    """summary.md from hand-made eval.json files: the rates as written, the discordant pairs each way, McNemar."""
+    def cell(gap, algo, outcomes):
+        path = heldout.folder(tmp_path, gap, "roundabout", algo) / "eval.json"
+        path.parent.mkdir(parents=True)
+        rate = lambda o: {"mean": outcomes.count(o) / len(outcomes), "std": 0.0}  # noqa: E731
+        row = dict(algo=algo, success_rate=rate("arrival"), collision_rate=rate("collision"),
+                   timeout_rate=rate("timeout"), crossing_time={"mean": 20.0, "std": 0.0},
+                   cases=[dict(round=0, case=i, start="x", outcome=o, crossing_time=None, steps=9)
+                          for i, o in enumerate(outcomes)])
+        path.write_text(json.dumps(dict(scenario="roundabout", seed=0, rows=[row])))
+    cell(0.9, "tarl", ["arrival", "arrival", "collision", "timeout"])
+    cell(0.9, "tarl-fixed-t", ["collision", "arrival", "arrival", "arrival"])
+    args = SimpleNamespace(results=tmp_path, gaps=[0.9, 1.8], algos=["tarl", "tarl-fixed-t", "tarl-random-t"])
+    heldout.collect(args)
+    lines = (tmp_path / "summary.md").read_text().splitlines()
+    assert "| roundabout | 0.9 | tarl | 4 | 0.500 | 0.250 | 0.250 | 20.0 | - |" in lines
+    assert "| roundabout | 0.9 | tarl-fixed-t | 4 | 0.750 | 0.250 | 0.000 | 20.0 | 2 / 1, p 1 |" in lines
+    assert sum(line.startswith("| roundabout") for line in lines) == 2  # no cell at 1.8 s, none of tarl-random-t
