@@ -71,9 +71,11 @@ from table3 import ABLATIONS, NAMES, ROWS, SCENARIOS  # noqa: E402
 plt.rcParams.update({"font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11, "legend.fontsize": 10,
                      "xtick.labelsize": 9, "ytick.labelsize": 9})
 ORDER = tuple(a for a in ROWS + ABLATIONS if a != "lattice-idm")  # the learned rows of Table 3, in its order
+FIG5 = tuple(a for a in ROWS if a != "lattice-idm") + ABLATIONS[:2]  # Fig. 5's rows unless --algos: and the ablations
 COLORS = {"tarl": "#d62728", "sac": "#1f77b4", "sac-lattice": "#2ca02c", "sac-lag": "#9467bd", "sac-pid": "#8c564b",
           "ppo-lag": "#e377c2", "cpo": "#7f7f7f", "tarl-fixed-t": "#ff7f0e", "tarl-random-t": "#17becf",
-          "tarl-consistent": "#bcbd22", "tarl-held": "#aec7e8", "tarl-utd": "#ff9896"}
+          "tarl-consistent": "#bcbd22", "tarl-held": "#aec7e8", "tarl-utd": "#ff9896", "tarl-actor-target": "#393b79",
+          "tarl-rare-replay": "#637939", "tarl-min-target": "#843c39"}
 # Sec. 5.5 of the paper: mean 1 - beta over all steps, within 3 s and 1 s before a collision
 PAPER_BETA_MINUS = {"intersection": (0.495, 0.657, 0.859), "roundabout": (0.663, 0.839, 0.872)}
 RUN_NAME = re.compile(r"^(?P<scenario>[a-z]+)-(?P<algo>[a-z0-9-]+)-s(?P<seed>\d+)(?:-(?P<budget>\d+k))?$")  # bench/table3.py
@@ -160,6 +162,8 @@ def over_seeds(curves: np.ndarray):
 
 def training(args):
     runs = find_runs(args.runs, args.budget)
+    if args.algos != ["all"]:  # Table 3's learned rows and the two ablations unless asked: the variants crowd it
+        runs = {k: v for k, v in runs.items() if k[1] in (args.algos or FIG5)}
     if args.bin is not None and args.bin < 1:
         fail("--bin is a number of steps: at least 1")
     ends = [int(log["step"].max()) for seeds in runs.values() for log in seeds.values() if len(log["step"])]
@@ -645,6 +649,8 @@ def parse_args(argv=None):
     t.add_argument("--out", type=Path, default=ROOT / "results" / "fig5_training.png")
     t.add_argument("--budget", help="draw the runs of another budget, named SCENARIO-ALGO-sSEED-BUDGET (500k)")
     t.add_argument("--bin", type=int, help="steps per bin (default: 5000, less for runs shorter than 100,000 steps)")
+    t.add_argument("--algos", nargs="+", help="rows to draw, or 'all' (default: Table 3's learned rows and the two "
+                   "ablations)")
     for command, help_ in (("case", "Fig. 6: one test case, step by step"),
                            ("failure", "Fig. 7: the first test case of an eval.json that ended in a collision")):
         c = sub.add_parser(command, help=help_)
