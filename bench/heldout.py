@@ -58,15 +58,16 @@ def run(gap: float, scenario: str, algo: str, args) -> bool:
 
 
 def collect(args):
-    """results/heldout/summary.md: every row at every gap, beside the first of --algos case by case."""
+    """results/heldout/summary.md: every row at every gap run so far, beside the first of --algos case by case."""
     lines = ["# Shipped seed-0 policies at other traffic densities", "", "Built by `python bench/heldout.py "
              "--collect-only`. Success, collision, timeout: the mean over rounds. Case by case: of the cases where "
              f"exactly one of the row and {args.algos[0]} arrives, how many go to the row (+) and to {args.algos[0]} "
              "(-), and McNemar's exact p.", "",
              "| scenario | gap [s] | row | cases | success | collision | timeout | crossing [s] | vs " + args.algos[0] + " |",
              "|---|---|---|---|---|---|---|---|---|"]
+    gaps = sorted(float(p.name[len("gap-"):]) for p in args.results.glob("gap-*"))  # every gap run so far
     for scenario in SCENARIOS:
-        for gap in args.gaps:
+        for gap in gaps:
             rows = {a: read_row(p, a) for a in args.algos if (p := folder(args.results, gap, scenario, a) / "eval.json").exists()}
             first = rows.get(args.algos[0])
             for algo, row in rows.items():
