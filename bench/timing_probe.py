@@ -349,7 +349,7 @@ def figure(results: list[dict], path: Path):
               "before a collision", LOOPS), ("disc", None, "mean discounted return", LOOPS[:2]),
               ("disc", None, "mean discounted return", LOOPS[2:]))
     for col, res in enumerate(results):
-        Ts = np.arange(1, res["t_max"] + 1)
+        Ts, who = np.arange(1, res["t_max"] + 1), res["scenario"] + ("" if res["algo"] == "tarl" else f", {res['algo']}")
         for row, (key, kind, label, loops) in enumerate(panels):
             ax, agg = axes[row, col], aggregate(res["branches"], res["t_max"], kind)
             for lp in loops:
@@ -358,8 +358,8 @@ def figure(results: list[dict], path: Path):
                 ax.plot(Ts, y, color=c, ls=ls, marker=m, ms=5, label=name)
                 if key == "disc":
                     ax.fill_between(Ts, y - se, y + se, color=c, alpha=0.15, lw=0)
-            ax.axhline(agg["original"][0][key], color="grey", ls=":", label="TARL's own continuation")
-            ax.set(xlabel="T [steps]", ylabel=label, xticks=Ts, title=f"{res['scenario']}: {agg['original'][0]['n']} states")
+            ax.axhline(agg["original"][0][key], color="grey", ls=":", label="the policy's own continuation")
+            ax.set(xlabel="T [steps]", ylabel=label, xticks=Ts, title=f"{who}: {agg['original'][0]['n']} states")
             ax.grid(alpha=0.3)
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="upper center", ncol=3, fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.955))
