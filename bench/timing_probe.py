@@ -349,7 +349,7 @@ def figure(results: list[dict], path: Path):
               "before a collision", LOOPS), ("disc", None, "mean discounted return", LOOPS[:2]),
               ("disc", None, "mean discounted return", LOOPS[2:]))
     for col, res in enumerate(results):
-        Ts, who = np.arange(1, res["t_max"] + 1), res["scenario"] + ("" if res["algo"] == "tarl" else f", {res['algo']}")
+        Ts, who = np.arange(1, res["t_max"] + 1), res["scenario"] + ("" if res.get("algo", "tarl") == "tarl" else f", {res['algo']}")
         for row, (key, kind, label, loops) in enumerate(panels):
             ax, agg = axes[row, col], aggregate(res["branches"], res["t_max"], kind)
             for lp in loops:
