@@ -253,20 +253,21 @@ def markdown(results: list[dict]) -> str:
     lines = ["# The ranking of T in the timing imagination and in the real loop, from the same states", "",
              "Written by `python bench/timing_probe.py` (its docstring says what each loop is). Per T: the arrival / "
              "collision / timeout rates over the branches, the mean return from the branch point, the mean discounted "
-             "return (gamma = 0.99) +- its standard error paired with TARL's own continuation from the same states, "
+             "return (gamma = 0.99) +- its standard error paired with the policy's own continuation from the same states, "
              "and the rank of T by mean discounted return (1 = best). Taker's pick: the share of states where T is "
              "the timing taker's most likely T (Sec. 5.3's deterministic choice).", ""]
     for res in results:
         n_t, states, agg = res["t_max"], res["states"], aggregate(res["branches"], res["t_max"])
         picks = np.bincount([s["taker_T"] for s in states], minlength=n_t + 1)[1:n_t + 1] / len(states)
         o, pi = agg["original"][0], np.mean([s["taker_pi"] for s in states], 0)[:n_t]
+        who = "TARL" if res.get("algo", "tarl") == "tarl" else res["algo"]  # the probed policy
         lines += [f"## {res['scenario']}" + (f", {res['algo']}" if res.get("algo", "tarl") != "tarl" else ""), "",
                   f"{len(states)} states ({sum(s['kind'] == 'regular' for s in states)} every {res['every']} steps "
                   f"of {res['cases']} test cases, {sum(s['kind'] == 'crash' for s in states)} in the last 3 s "
-                  f"before {len(res['crash_cases'])} collisions); TARL's own continuation from them: arrival "
+                  f"before {len(res['crash_cases'])} collisions); {who}'s own continuation from them: arrival "
                   f"{o['arrival']:.2f}, collision {o['collision']:.2f}, timeout {o['timeout']:.2f}, return "
                   f"{o['ret']:.2f} (discounted {o['disc']:.2f}). Wall time {res['wall_s'] / 60:.1f} min.", "",
-                  *loop_table(agg, LOOPS[:2], picks, "One decision, then TARL's driver"), "",
+                  *loop_table(agg, LOOPS[:2], picks, f"One decision, then {who}'s driver"), "",
                   *loop_table(agg, LOOPS[2:], picks, "Constant T to the end")]
         rho = {kind: {lp: [r["disc"] for r in aggregate(res["branches"], n_t, kind)[lp]] for lp in LOOPS}
                for kind in (None, "regular", "crash")}
@@ -282,12 +283,12 @@ def markdown(results: list[dict]) -> str:
         own = {(b["case"], b["k"]): b["outcome"] for b in res["branches"] if b["loop"] == "original"}
         changed = {lp: max(sum(b["outcome"] != own[b["case"], b["k"]] for b in res["branches"] if b["loop"] == lp
                                and b["T"] == T and b["kind"] == "regular") for T in range(1, n_t + 1)) for lp in LOOPS[:2]}
-        lines += [f"From the regular states, one decision changed TARL's outcome in at most {changed['imagination']} "
+        lines += [f"From the regular states, one decision changed {who}'s outcome in at most {changed['imagination']} "
                   f"(imagination) and {changed['real']} (real) of them for any T.", ""]
         crash, sel = aggregate(res["branches"], n_t, "crash"), [s["taker_T"] for s in states if s["kind"] == "crash"]
         if sel:
             picks = np.bincount(sel, minlength=n_t + 1)[1:n_t + 1] / len(sel)
-            lines += [f"The {len(sel)} states before collisions alone (TARL's own continuation collides from each): "
+            lines += [f"The {len(sel)} states before collisions alone ({who}'s own continuation collides from each): "
                       "arrival / collision rate; mean discounted return.", "",
                       "| T | taker's pick | " + " | ".join(LOOPS) + " |", "|---" * (2 + len(LOOPS)) + "|"]
             lines += [f"| {T} | {picks[T - 1]:.2f} | " + " | ".join(
@@ -307,7 +308,7 @@ def critic_lines(res: dict) -> list[str]:
     disc = {(b["case"], b["k"], b["loop"], b["T"]): b["disc"] for b in res["branches"]}
     lines = [f"### The timing taker's critic, from the same states (alpha = {res.get('alpha', float('nan')):.3f})", "",
              "min(Q1, Q2)(s, a, T) of Eq. (9) at each state, beside the measured discounted return of one decision "
-             "with T then TARL's driver (imagination: Eq. (7); real: beta(T)). Q's own continuation is more "
+             "with T then the policy's driver (imagination: Eq. (7); real: beta(T)). Q's own continuation is more "
              "imagination decisions, so its level may differ; its ranking of T is what the taker acts on. "
              "Spearman: per state, Q(s, a, .) against the measured returns over T, the mean over states.", ""]
     for kind, title in kinds:
@@ -323,7 +324,7 @@ def critic_lines(res: dict) -> list[str]:
         pick = np.bincount(q.argmax(1), minlength=n_t) / len(states)
         lines += [f"{title} ({len(states)}): Spearman Q vs imagination **{rho['imagination']:.2f}**, vs real "
                   f"**{rho['real']:.2f}**. The actor's critic min Q(s, a) (Eq. (13)) at the same states: "
-                  f"{np.mean([st['actor_q'] for st in states]):.2f}, against TARL's own continuation's measured "
+                  f"{np.mean([st['actor_q'] for st in states]):.2f}, against the policy's own continuation's measured "
                   f"{own:.2f}.", "",
                   "| T | mean Q | measured, imagination | measured, real | argmax Q | best, imagination | best, real |",
                   "|---|---|---|---|---|---|---|"]
