@@ -35,11 +35,14 @@ class ActorTargetTrainer(tarl.Trainer):
 
     def timing_batch(self, batch_size: int, rng, idx=None) -> dict[str, torch.Tensor]:
         batch = super().timing_batch(batch_size, rng, idx)
-        # y of Eq. (9) with the actor's V(s_t+T): tarl.td_target of the actor, on the decision's own r_T and gamma^T
-        next_state = dict(batch, next_obs=batch["next_obs"][:, :OBS_DIM])
-        batch["rew"] = tarl.td_target(self.actor, next_state)
+        batch["rew"] = self.target(batch)
         batch["discount"] = torch.zeros_like(batch["discount"])  # so that the timing taker's target is y itself
         return batch
+
+    def target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """y of Eq. (9) with the actor's V(s_t+T): tarl.td_target of the actor, on the decision's own r_T and
+        gamma^T."""
+        return tarl.td_target(self.actor, dict(batch, next_obs=batch["next_obs"][:, :OBS_DIM]))
 
     def after_step(self, r: float, b: float | None, info: dict, done: bool, loop: str):
         """A timing update at every simulator step (imagination and real loop), once D_T holds enough decisions."""
@@ -88,11 +91,7 @@ class MinTargetTrainer(ActorTargetTrainer):
     step.
     """
 
-    def timing_batch(self, batch_size: int, rng, idx=None) -> dict[str, torch.Tensor]:
-        batch = tarl.Trainer.timing_batch(self, batch_size, rng, idx)
+    def target(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         own = tarl.td_target(self.timing_taker, batch)  # r_T + gamma^T (1 - delta) V_T(s_t+T)
-        actors = tarl.td_target(self.actor, dict(batch, next_obs=batch["next_obs"][:, :OBS_DIM]))  # ... V_a(s_t+T)
         # gamma^T (1 - delta) >= 0, so the lower target is the one with the lower V
-        batch["rew"] = torch.minimum(own, actors)
-        batch["discount"] = torch.zeros_like(batch["discount"])  # so that the timing taker's target is y itself
-        return batch
+        return torch.minimum(own, super().target(batch))  # ... V_a(s_t+T)

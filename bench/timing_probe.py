@@ -249,6 +249,11 @@ def loop_table(agg: dict, loops, picks, title: str) -> list[str]:
     return [f"{title}:", "", f"| T | taker's pick | {head} |", "|---" * (2 + 3 * len(loops)) + "|", *rows]
 
 
+def probed(res: dict) -> str:
+    """The row whose policy a JSON probed: "TARL", or a variant's --algo (JSONs from before --algo are TARL's)."""
+    return "TARL" if res.get("algo", "tarl") == "tarl" else res["algo"]
+
+
 def markdown(results: list[dict]) -> str:
     lines = ["# The ranking of T in the timing imagination and in the real loop, from the same states", "",
              "Written by `python bench/timing_probe.py` (its docstring says what each loop is). Per T: the arrival / "
@@ -260,8 +265,8 @@ def markdown(results: list[dict]) -> str:
         n_t, states, agg = res["t_max"], res["states"], aggregate(res["branches"], res["t_max"])
         picks = np.bincount([s["taker_T"] for s in states], minlength=n_t + 1)[1:n_t + 1] / len(states)
         o, pi = agg["original"][0], np.mean([s["taker_pi"] for s in states], 0)[:n_t]
-        who = "TARL" if res.get("algo", "tarl") == "tarl" else res["algo"]  # the probed policy
-        lines += [f"## {res['scenario']}" + (f", {res['algo']}" if res.get("algo", "tarl") != "tarl" else ""), "",
+        who = probed(res)
+        lines += [f"## {res['scenario']}" + ("" if who == "TARL" else f", {who}"), "",
                   f"{len(states)} states ({sum(s['kind'] == 'regular' for s in states)} every {res['every']} steps "
                   f"of {res['cases']} test cases, {sum(s['kind'] == 'crash' for s in states)} in the last 3 s "
                   f"before {len(res['crash_cases'])} collisions); {who}'s own continuation from them: arrival "
@@ -350,7 +355,7 @@ def figure(results: list[dict], path: Path):
               "before a collision", LOOPS), ("disc", None, "mean discounted return", LOOPS[:2]),
               ("disc", None, "mean discounted return", LOOPS[2:]))
     for col, res in enumerate(results):
-        Ts, who = np.arange(1, res["t_max"] + 1), res["scenario"] + ("" if res.get("algo", "tarl") == "tarl" else f", {res['algo']}")
+        Ts, who = np.arange(1, res["t_max"] + 1), res["scenario"] + ("" if probed(res) == "TARL" else f", {probed(res)}")
         for row, (key, kind, label, loops) in enumerate(panels):
             ax, agg = axes[row, col], aggregate(res["branches"], res["t_max"], kind)
             for lp in loops:
