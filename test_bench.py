@@ -2,6 +2,7 @@
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -154,6 +155,64 @@ def test_table3_a_relative_work_directory_is_the_callers_not_the_repositorys(tmp
                  "--scenarios", "intersection", "--print-commands"])
     out = capsys.readouterr().out.split()
     assert out[out.index("--out") + 1] == str(tmp_path / "cells" / "intersection-sac-s4")
+
+
+def test_table3_sets_the_papers_budget_beside_the_default_one_of_the_same_seed(tmp_path):
+    found = _results(tmp_path, [
+        ("roundabout-sac-lag-s0", "roundabout", 0, [_row("sac-lag", 0, 0.9, "a")]),
+        ("roundabout-sac-lag-s1", "roundabout", 1, [_row("sac-lag", 1, 0.5, "a")]),
+        ("roundabout-sac-lag-s0-500k", "roundabout", 0, [_row("sac-lag", 0, 0.95, "a")]),
+        ("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.7, "a")])])
+    lines = table3.budget_block(found, ("sac-lag", "sac", "cpo"))
+    assert "| roundabout | SAC-Lag | 0.950 (0.050 / 0.000) | 20.0 | 0.900 (0.100 / 0.000) | 20.0 | 0.872 |" in lines
+    assert "| roundabout | SAC | not run | - | 0.700 (0.300 / 0.000) | 20.0 | - |" in lines
+    assert len(lines) == 4  # the header, its rule, and no line for a row with no cell of seed 0 at all
+
+
+def test_table3_adds_a_cells_wall_time_over_the_stretches_it_ran_in(tmp_path):
+    (tmp_path / "runs" / "roundabout-sac-lag-s0-500k").mkdir(parents=True)
+    (tmp_path / "runs" / "roundabout-sac-lag-s0-500k" / "log.txt").write_text(
+        "# grid 2026-12-03 18:18:40 UTC: start, 1 thread(s), beside: intersection-sac-lag-s0-500k, load 0.8\n"
+        "step 2000/500000 ...\n# grid 2026-12-03 21:00:00 UTC: interrupted after 161.3 min, exit code 1, load 2.1\n"
+        "# grid 2026-12-04 09:00:00 UTC: start, 1 thread(s), beside: no other cell, load 0.1\n"
+        "# grid 2026-12-04 10:00:00 UTC: finished after 58.7 min, exit code 0, load 1.0\n")
+    assert table3.wall_times(tmp_path)[2] == ("| roundabout-sac-lag-s0-500k | 3.67 | 2 | 1 thread(s), beside: "
+                                              "intersection-sac-lag-s0-500k, load 0.8; 1 thread(s), beside: no other "
+                                              "cell, load 0.1 |")
+
+
+GRID = """
+import sys
+from argparse import Namespace
+from pathlib import Path
+sys.path.insert(0, {bench!r})
+import table3
+cell = "import signal, sys, time; signal.signal(signal.SIGTERM, lambda *a: (open(sys.argv[1], 'w').close(), sys.exit(1))); " \\
+       "print('ready', flush=True); time.sleep(600)"
+# a cell that saves when it is killed, as tarl.py does
+table3.command = lambda scenario, *a: ["python", "-c", cell, str(Path({work!r}) / f"{{scenario}}.saved")]
+table3.run_grid([("intersection", "sac", 0), ("roundabout", "sac", 0)], Namespace(
+    work=Path({work!r}), results=Path({work!r}) / "results", steps=500_000, step_one=None, jobs=2, threads=1))
+"""
+
+
+def test_table3_a_killed_grid_ends_its_cells_so_that_they_save_and_stamps_them(tmp_path):
+    """SIGTERM to the grid (a session's end): every running cell gets it too and saves, the grid waits for them,
+    stamps each log.txt and ends with one line; nothing is left running."""
+    grid = subprocess.Popen([sys.executable, "-c", GRID.format(bench=str(Path(table3.__file__).parent), work=str(tmp_path))],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    logs = [tmp_path / f"{s}-sac-s0-500k" / "log.txt" for s in ("intersection", "roundabout")]
+    for _ in range(300):
+        if all(log.exists() and "ready" in log.read_text() for log in logs):
+            break
+        time.sleep(0.1)
+    grid.terminate()
+    out, err = grid.communicate(timeout=60)
+    assert grid.returncode == 1 and err.strip().splitlines()[-1].startswith("interrupted: the cells saved")
+    for log in logs:
+        text = log.read_text()
+        assert "UTC: start, 1 thread(s), beside: " in text and "UTC: interrupted after " in text, text
+        assert (tmp_path / f"{log.parent.name.split('-')[0]}.saved").exists()
 
 
 import heldout  # noqa: E402

@@ -17,12 +17,15 @@ beside the mean over seeds of the per-round std (Table 3's +-) and the paper's v
 import argparse
 import fcntl
 import json
+import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
 from collections import Counter
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +98,8 @@ def publish(scenario, algo, seed, args):
     name = cell_name(scenario, algo, seed, args.steps, args.step_one)
     src, dst = args.work / name, args.results / "runs" / name
     dst.mkdir(parents=True, exist_ok=True)
-    for file in ("train_log.csv", "constraint_log.csv", "policy.pt"):  # ~1 MB each policy: every seed's
+    # log.txt: the progress lines and the grid's stamps (when each stretch ran, and beside what: wall_times)
+    for file in ("train_log.csv", "constraint_log.csv", "policy.pt", "log.txt"):  # ~1 MB each policy: every seed's
         if (src / file).exists():
             shutil.copy(src / file, dst / file)
     shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
@@ -130,31 +134,74 @@ def claim(cell, args):
     return out, lock
 
 
+def stamp(log, text: str):
+    """A line of the grid's own in a cell's log.txt: when a stretch of the cell ran and beside what (wall_times)."""
+    log.write(f"# grid {datetime.now(timezone.utc):%Y-%m-%d %H:%M:%S} UTC: {text}, load {os.getloadavg()[0]:.1f}\n")
+    log.flush()
+
+
 def run_grid(todo, args):
-    """Run the cells, `--jobs` at a time; each one's output goes to its own log.txt."""
+    """Run the cells, `--jobs` at a time; each one's output goes to its own log.txt. A kill (SIGTERM) ends the cells
+    as Ctrl-C does: each saves its checkpoint and the same command resumes them."""
     running = {}
-    while todo or running:
-        while todo and len(running) < args.jobs:
-            cell = todo.pop(0)
-            claimed = claim(cell, args)
-            if claimed is None:
-                print(f"skipped {' '.join(map(str, cell))}: done or run by another grid", flush=True)
-                continue
-            out, lock = claimed
-            log = open(out / "log.txt", "a")
-            running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.threads)[1:]], stdout=log, stderr=subprocess.STDOUT,
-                                              cwd=ROOT), log, time.time(), lock)
-            print(f"started {' '.join(map(str, cell))} ({len(todo)} waiting)", flush=True)
-        time.sleep(5)
-        for cell, (proc, log, t0, lock) in list(running.items()):
-            if proc.poll() is not None:
-                log.close()
-                del running[cell]
-                print(f"{'finished' if proc.returncode == 0 else 'FAILED'} {' '.join(map(str, cell))} in "
-                      f"{(time.time() - t0) / 60:.1f} min", flush=True)
-                if proc.returncode == 0:
-                    publish(*cell, args)
-                lock.close()
+
+    def ended(cell, code, how):
+        proc, log, t0, lock = running.pop(cell)
+        stamp(log, f"{how} after {(time.time() - t0) / 60:.1f} min, exit code {code}")
+        log.close()
+        print(f"{how} {' '.join(map(str, cell))} in {(time.time() - t0) / 60:.1f} min", flush=True)
+        if code == 0:
+            publish(*cell, args)
+        lock.close()
+
+    def terminated(signum, frame):
+        for proc, *_ in running.values():
+            proc.terminate()  # the cell's own handler saves; Ctrl-C reaches the cells from the terminal itself
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGTERM, terminated)
+    try:
+        while todo or running:
+            while todo and len(running) < args.jobs:
+                cell = todo.pop(0)
+                claimed = claim(cell, args)
+                if claimed is None:
+                    print(f"skipped {' '.join(map(str, cell))}: done or run by another grid", flush=True)
+                    continue
+                out, lock = claimed
+                log = open(out / "log.txt", "a")
+                stamp(log, f"start, {args.threads} thread(s), beside: "
+                           + (", ".join(cell_name(*c, args.steps, args.step_one) for c in running) or "no other cell"))
+                running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.threads)[1:]], stdout=log,
+                                                  stderr=subprocess.STDOUT, cwd=ROOT), log, time.time(), lock)
+                print(f"started {' '.join(map(str, cell))} ({len(todo)} waiting)", flush=True)
+            time.sleep(5)
+            for cell, (proc, *_) in list(running.items()):
+                if proc.poll() is not None:
+                    ended(cell, proc.returncode, "finished" if proc.returncode == 0 else "FAILED")
+    except KeyboardInterrupt:
+        for cell, (proc, *_) in list(running.items()):
+            try:
+                proc.wait(timeout=SAVE_WAIT)
+            except subprocess.TimeoutExpired:  # never wait forever on a cell that does not end
+                proc.kill()
+            ended(cell, proc.wait(), "interrupted")
+        raise SystemExit("interrupted: the cells saved their checkpoints; the same command resumes them") from None
+
+
+SAVE_WAIT = 300  # [s] a cell's time to save its checkpoint (its replay buffer) when interrupted
+
+
+def wall_times(results: Path) -> list[str]:
+    """Each cell's wall time (training and evaluation) from the grid's stamps in its log.txt, stretch by stretch:
+    a cell that spans sessions resumes from its checkpoint, and the stretches add up."""
+    lines = ["| cell | wall time [h] | stretches | beside, at each start (load) |", "|---|---|---|---|"]
+    for path in sorted((results / "runs").glob("*/log.txt")):
+        stamps = re.findall(r"^# grid [^:]+:\d\d:\d\d UTC: (.*)$", path.read_text(), re.M)
+        minutes = [float(m) for text in stamps for m in re.findall(r"after ([\d.]+) min", text)]
+        beside = [re.sub(r"^start, ", "", text) for text in stamps if text.startswith("start")]
+        if minutes:
+            lines.append(f"| {path.parent.name} | {sum(minutes) / 60:.2f} | {len(minutes)} | {'; '.join(beside)} |")
+    return lines
 
 
 def load(results: Path) -> dict:
@@ -226,7 +273,9 @@ TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL
 # ablations in italics; "paper": RESULTS.md's Table 3, with the mean per-round std and Table 3's values; "full": the
 # same without Table 3's values (RESULTS.md, "What the timing adds").
 README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS[:2]), "compact"), "results": (TABLE_ROWS, "paper"),
-               "timing": (("tarl", *ABLATIONS, "sac", "lattice-idm"), "full")}
+               "timing": (("tarl", *ABLATIONS, "sac", "lattice-idm"), "full"),
+               "budget": ((*TABLE_ROWS, *ABLATIONS[:2]), "budget")}
+PAPERS = (500_000, None)  # the paper's budget (Table 2)
 RATES = ("success_rate", "collision_rate", "timeout_rate")  # of each row of eval.json, in the tables' column order
 
 
@@ -275,6 +324,26 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
     return lines[:-1]
 
 
+def budget_block(found: dict, algos, seed: int = 0, budget=PAPERS) -> list[str]:
+    """RESULTS.md's Table 3 at the paper's budget, one seed: each row's success (collisions / timeouts) and crossing
+    time after `budget` steps beside the same seed's at the default budget and Table 3's success; "not run" where a
+    row has no cell at that budget yet."""
+    def text(row):
+        if row is None:
+            return "not run", "-"
+        rates = "{:.3f} ({:.3f} / {:.3f})".format(*(row[k]["mean"] for k in RATES))
+        return rates, "-" if row["crossing_time"]["mean"] is None else f"{row['crossing_time']['mean']:.1f}"
+    lines = [f"| scenario | model | success (collisions / timeouts), {budget[0]:,} steps | crossing [s] | the same at "
+             f"{STEPS:,} steps | crossing [s] | paper success |", "|---|---|---|---|---|---|---|"]
+    for scenario, algo in [(s, a) for s in SCENARIOS for a in algos]:
+        long, short = (found.get(b, {}).get((scenario, algo), {}).get(seed) for b in (budget, DEFAULT))
+        ref = PAPER[scenario].get(algo)
+        if long or short:
+            lines.append(f"| {scenario} | {NAMES[algo]} | {' | '.join(text(long))} | {' | '.join(text(short))} | "
+                         f"{f'{ref[0]:.3f}' if ref else '-'} |")
+    return lines
+
+
 def write_readme(found: dict, readme: Path):
     """Replace each block between `<!-- table3.py NAME -->` and `<!-- /table3.py -->` (NAME in README_ROWS) in
     `readme` and in the RESULTS.md beside it, if there is one: the headline tables live in README.md, the full ones
@@ -315,7 +384,8 @@ def write_readme(found: dict, readme: Path):
             head, found_begin, rest = text.partition(begin.format(name))
             if not found_begin:
                 continue
-            block = compact(algos) if kind == "compact" else readme_block(found, algos, kind == "paper")
+            block = (compact(algos) if kind == "compact" else budget_block(found, algos) if kind == "budget"
+                     else readme_block(found, algos, kind == "paper"))
             text = head + begin.format(name) + "\n" + "\n".join(block) + "\n" + end + rest.partition(end)[2]
         path.write_text(text)
 
@@ -353,7 +423,10 @@ def collect(args):
               "most rows of that seed had for it:", "", *same_cases(found), "",
               "## Case by case: TARL against its ablations, plain SAC and its planner", "",
               "Of the same test cases, those where exactly one of the two arrives (the budget is the other row's; TARL's "
-              "the same, or the default where TARL has no cell at that budget):", "", *case_by_case(found), ""]
+              "the same, or the default where TARL has no cell at that budget):", "", *case_by_case(found), "",
+              "## Wall time of each cell", "", "From the grid's stamps in each cell's log.txt (cells run before the "
+              "stamps have none): training and evaluation, summed over the stretches a cell ran in, and what ran beside "
+              "each stretch when it started.", "", *wall_times(args.results), ""]
     (args.results / "table3.md").write_text("\n".join(lines))
     if args.readme:
         write_readme(found, ROOT / "README.md")
