@@ -158,14 +158,21 @@ def test_table3_a_relative_work_directory_is_the_callers_not_the_repositorys(tmp
 
 
 def test_table3_sets_the_papers_budget_beside_the_default_one_of_the_same_seed(tmp_path):
+    def played(row, outcomes):
+        row["cases"] = [{"round": 0, "case": i, "start": "a", "outcome": o} for i, o in enumerate(outcomes)]
+        return row
     found = _results(tmp_path, [
         ("roundabout-sac-lag-s0", "roundabout", 0, [_row("sac-lag", 0, 0.9, "a")]),
         ("roundabout-sac-lag-s1", "roundabout", 1, [_row("sac-lag", 1, 0.5, "a")]),
-        ("roundabout-sac-lag-s0-500k", "roundabout", 0, [_row("sac-lag", 0, 0.95, "a")]),
+        ("roundabout-sac-lag-s0-500k", "roundabout", 0, [played(_row("sac-lag", 0, 0.95, "a"),
+                                                                ["arrival", "collision", "timeout", "arrival"])]),
+        ("roundabout-tarl-s0-500k", "roundabout", 0, [played(_row("tarl", 0, 0.75, "a"),
+                                                             ["collision", "arrival", "arrival", "arrival"])]),
         ("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.7, "a")])])
     lines = table3.budget_block(found, ("sac-lag", "sac", "cpo"))
-    assert "| roundabout | SAC-Lag | 0.950 (0.050 / 0.000) | 20.0 | 0.900 (0.100 / 0.000) | 20.0 | 0.872 |" in lines
-    assert "| roundabout | SAC | not run | - | 0.700 (0.300 / 0.000) | 20.0 | - |" in lines
+    # case by case against TARL's 500k cell: TARL alone arrives in cases 1 and 2, SAC-Lag alone in case 0
+    assert "| roundabout | SAC-Lag | 0.950 (0.050 / 0.000) | 20.0 | 0.900 (0.100 / 0.000) | 20.0 | 0.872 | 2 / 1 |" in lines
+    assert "| roundabout | SAC | not run | - | 0.700 (0.300 / 0.000) | 20.0 | - | - |" in lines
     assert len(lines) == 4  # the header, its rule, and no line for a row with no cell of seed 0 at all
 
 

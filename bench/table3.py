@@ -249,6 +249,12 @@ def same_cases(found: dict) -> list[str]:
     return lines
 
 
+def outcome_pairs(a: dict, b: dict) -> Counter:
+    """(a's outcome, b's outcome) counted over the test cases both rows of eval.json played."""
+    mine = {(c["round"], c["case"]): c["outcome"] for c in a["cases"]}
+    return Counter((mine[c["round"], c["case"]], c["outcome"]) for c in b["cases"] if (c["round"], c["case"]) in mine)
+
+
 def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> list[str]:
     """TARL against each of `against` on the same test cases: where exactly one of the two arrives, how the other
     failed (the README's "What the timing adds"). TARL at the same budget, or at the default one if it has no cell
@@ -260,8 +266,7 @@ def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> lis
             tarl_row = (found[budget].get((scenario, "tarl")) or found.get(DEFAULT, {}).get((scenario, "tarl"), {})).get(seed)
             if tarl_row is None:
                 continue
-            mine = {(c["round"], c["case"]): c["outcome"] for c in tarl_row["cases"]}
-            pairs = Counter((mine[c["round"], c["case"]], c["outcome"]) for c in row["cases"] if (c["round"], c["case"]) in mine)
+            pairs = outcome_pairs(tarl_row, row)
             lines.append(f"| {budget_text(budget)} | {scenario} | {seed} | {NAMES[algo]} | {pairs['arrival', 'collision']} / "
                          f"{pairs['arrival', 'timeout']} | {pairs['collision', 'arrival']} / {pairs['timeout', 'arrival']} |")
     return lines
@@ -327,20 +332,25 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
 def budget_block(found: dict, algos, seed: int = 0, budget=PAPERS) -> list[str]:
     """RESULTS.md's Table 3 at the paper's budget, one seed: each row's success (collisions / timeouts) and crossing
     time after `budget` steps beside the same seed's at the default budget and Table 3's success; "not run" where a
-    row has no cell at that budget yet."""
+    row has no cell at that budget yet. Case by case against TARL at that budget: the cases only TARL arrives in /
+    only the row does."""
     def text(row):
         if row is None:
             return "not run", "-"
         rates = "{:.3f} ({:.3f} / {:.3f})".format(*(row[k]["mean"] for k in RATES))
         return rates, "-" if row["crossing_time"]["mean"] is None else f"{row['crossing_time']['mean']:.1f}"
     lines = [f"| scenario | model | success (collisions / timeouts), {budget[0]:,} steps | crossing [s] | the same at "
-             f"{STEPS:,} steps | crossing [s] | paper success |", "|---|---|---|---|---|---|---|"]
+             f"{STEPS:,} steps | crossing [s] | paper success | only TARL / only it arrives, {budget[0]:,} steps |",
+             "|---|---|---|---|---|---|---|---|"]
     for scenario, algo in [(s, a) for s in SCENARIOS for a in algos]:
         long, short = (found.get(b, {}).get((scenario, algo), {}).get(seed) for b in (budget, DEFAULT))
-        ref = PAPER[scenario].get(algo)
+        ref, tarl_row = PAPER[scenario].get(algo), found.get(budget, {}).get((scenario, "tarl"), {}).get(seed)
+        pairs = outcome_pairs(tarl_row, long) if long and tarl_row and algo != "tarl" else None
         if long or short:
             lines.append(f"| {scenario} | {NAMES[algo]} | {' | '.join(text(long))} | {' | '.join(text(short))} | "
-                         f"{f'{ref[0]:.3f}' if ref else '-'} |")
+                         f"{f'{ref[0]:.3f}' if ref else '-'} | " + (
+                             "-" if pairs is None else f"{sum(n for (a, b), n in pairs.items() if a == 'arrival' != b)}"
+                             f" / {sum(n for (a, b), n in pairs.items() if b == 'arrival' != a)}") + " |")
     return lines
 
 
