@@ -442,7 +442,9 @@ def parse_args(argv=None):
     args.state = None
     if args.load or args.resume:
         args.state = load_checkpoint(args.load or args.out / "ckpt.pt", args.scenario, args.algo)
-        if args.resume and args.steps < max(args.state["step"], args.state["step_one"]) + 1:
+        # a run that trained its whole --steps and was stopped while evaluating: --resume plays the rounds it lacks
+        trained = args.state["step"] >= args.steps == args.state["config"].get("train", {}).get("steps")
+        if args.resume and not trained and args.steps < max(args.state["step"], args.state["step_one"]) + 1:
             raise SystemExit(f"--resume: the run in {args.out} is at step {args.state['step']:,} (its step 1 ends at "
                              f"{args.state['step_one']:,}); give --steps above both")
         if args.resume and args.step_one not in (None, args.state["step_one"]):

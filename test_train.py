@@ -157,6 +157,23 @@ def test_the_command_line_keeps_finished_rounds_when_interrupted_and_plays_the_r
     assert not (tmp_path / "eval-rounds").exists()
 
 
+def test_a_run_stopped_while_evaluating_resumes_to_evaluate_without_training_more(tmp_path, monkeypatch):
+    """The grid's case at a session's end: the whole budget trained, the evaluation cut off. --resume with the same
+    --steps (what bench/table3.py runs) plays the rounds that are missing and trains no further."""
+    argv = ["--scenario", "intersection", "--algo", "sac", "--steps", "150", "--eval-rounds", "2", "--eval-cases", "1",
+            "--out", str(tmp_path), "--workers", "0"]
+    play_round = experiment.play_round
+    monkeypatch.setattr(experiment, "play_round", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt) if a[-1] == 1
+                        else play_round(*a))
+    with pytest.raises(SystemExit, match="kept the finished rounds in .*; continue with --resume"):
+        experiment.main(argv)
+    trained = (tmp_path / "train_log.csv").read_text()
+    monkeypatch.setattr(experiment, "play_round", play_round)
+    experiment.main([*argv, "--resume"])
+    assert (tmp_path / "train_log.csv").read_text() == trained
+    assert [c["round"] for c in json.loads((tmp_path / "eval.json").read_text())["rows"][0]["cases"]] == [0, 1]
+
+
 def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypatch):
     now, lines = [0.0], []
     monkeypatch.setattr(tarl.time, "time", lambda: now[0])
@@ -198,6 +215,10 @@ def test_a_resumed_run_refuses_a_budget_it_has_already_passed(env, tmp_path):
     args = experiment.parse_args(["--scenario", "intersection", "--algo", "sac", "--out", str(tmp_path), "--resume",
                                   "--steps", "5000"])
     assert args.state["step"] == trainer.step and args.steps == 5000
+    # the run's own budget, all trained: a run stopped while evaluating resumes to play the rounds it lacks
+    args = experiment.parse_args(["--scenario", "intersection", "--algo", "sac", "--out", str(tmp_path), "--resume",
+                                  "--steps", "150"])
+    assert args.state["step"] >= 150 and args.steps == 150
 
 
 def test_step_one_sets_the_length_of_step_1_and_a_resumed_run_keeps_its_own(env, tmp_path):
