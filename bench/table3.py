@@ -179,6 +179,7 @@ def run_grid(todo, args):
                 if proc.poll() is not None:
                     ended(cell, proc.returncode, "finished" if proc.returncode == 0 else "FAILED")
     except KeyboardInterrupt:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second kill must not cut the cells' saves short
         for cell, (proc, *_) in list(running.items()):
             try:
                 proc.wait(timeout=SAVE_WAIT)
@@ -280,7 +281,7 @@ TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL
 README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS[:2]), "compact"), "results": (TABLE_ROWS, "paper"),
                "timing": (("tarl", *ABLATIONS, "sac", "lattice-idm"), "full"),
                "budget": ((*TABLE_ROWS, *ABLATIONS[:2]), "budget")}
-PAPERS = (500_000, None)  # the paper's budget (Table 2)
+PAPER_BUDGET = (500_000, None)  # the paper's training steps (Table 2), as (steps, step 1)
 RATES = ("success_rate", "collision_rate", "timeout_rate")  # of each row of eval.json, in the tables' column order
 
 
@@ -329,7 +330,7 @@ def readme_block(found: dict, algos, paper: bool) -> list[str]:
     return lines[:-1]
 
 
-def budget_block(found: dict, algos, seed: int = 0, budget=PAPERS) -> list[str]:
+def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list[str]:
     """RESULTS.md's Table 3 at the paper's budget, one seed: each row's success (collisions / timeouts) and crossing
     time after `budget` steps beside the same seed's at the default budget and Table 3's success; "not run" where a
     row has no cell at that budget yet. Case by case against TARL at that budget: the cases only TARL arrives in /
