@@ -147,9 +147,10 @@ def run_grid(todo, args):
 
     def ended(cell, code, how):
         proc, log, t0, lock = running.pop(cell)
-        stamp(log, f"{how} after {(time.time() - t0) / 60:.1f} min, exit code {code}")
+        minutes = (time.time() - t0) / 60
+        stamp(log, f"{how} after {minutes:.1f} min, exit code {code}")
         log.close()
-        print(f"{how} {' '.join(map(str, cell))} in {(time.time() - t0) / 60:.1f} min", flush=True)
+        print(f"{how} {' '.join(map(str, cell))} in {minutes:.1f} min", flush=True)
         if code == 0:
             publish(*cell, args)
         lock.close()
