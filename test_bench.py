@@ -182,10 +182,11 @@ def test_table3_adds_a_cells_wall_time_over_the_stretches_it_ran_in(tmp_path):
         "# grid 2026-12-03 18:18:40 UTC: start, 1 thread(s), beside: intersection-sac-lag-s0-500k, load 0.8\n"
         "step 2000/500000 ...\n# grid 2026-12-03 21:00:00 UTC: interrupted after 161.3 min, exit code 1, load 2.1\n"
         "# grid 2026-12-04 09:00:00 UTC: start, 1 thread(s), beside: no other cell, load 0.1\n"
-        "# grid 2026-12-04 10:00:00 UTC: finished after 58.7 min, exit code 0, load 1.0\n")
+        "# grid 2026-12-04 10:00:00 UTC: finished after 58.7 min, exit code 0, beside: roundabout-cpo-s0-500k + "
+        "intersection-cpo-s0-500k, load 1.0\n")  # an older start stamp alone, then a stretch that names all beside it
     assert table3.wall_times(tmp_path)[2] == ("| roundabout-sac-lag-s0-500k | 3.67 | 2 | 1 thread(s), beside: "
-                                              "intersection-sac-lag-s0-500k, load 0.8; 1 thread(s), beside: no other "
-                                              "cell, load 0.1 |")
+                                              "intersection-sac-lag-s0-500k, load 0.8; 1 thread(s), beside: "
+                                              "roundabout-cpo-s0-500k + intersection-cpo-s0-500k, load 0.1 |")
 
 
 GRID = """
@@ -218,7 +219,9 @@ def test_table3_a_killed_grid_ends_its_cells_so_that_they_save_and_stamps_them(t
     assert grid.returncode == 1 and err.strip().splitlines()[-1].startswith("interrupted: the cells saved")
     for log in logs:
         text = log.read_text()
+        other = {"intersection": "roundabout", "roundabout": "intersection"}[log.parent.name.split("-")[0]]
         assert "UTC: start, 1 thread(s), beside: " in text and "UTC: interrupted after " in text, text
+        assert f"exit code 1, beside: {other}-sac-s0-500k, load" in text, text  # the first started names the second too
         assert (tmp_path / f"{log.parent.name.split('-')[0]}.saved").exists()
 
 

@@ -146,9 +146,9 @@ def run_grid(todo, args):
     running = {}
 
     def ended(cell, code, how):
-        proc, log, t0, lock = running.pop(cell)
+        proc, log, t0, lock, beside = running.pop(cell)
         minutes = (time.time() - t0) / 60
-        stamp(log, f"{how} after {minutes:.1f} min, exit code {code}")
+        stamp(log, f"{how} after {minutes:.1f} min, exit code {code}, beside: {' + '.join(beside) or 'no other cell'}")
         log.close()
         print(f"{how} {' '.join(map(str, cell))} in {minutes:.1f} min", flush=True)
         if code == 0:
@@ -169,11 +169,13 @@ def run_grid(todo, args):
                     print(f"skipped {' '.join(map(str, cell))}: done or run by another grid", flush=True)
                     continue
                 out, lock = claimed
-                log = open(out / "log.txt", "a")
-                stamp(log, f"start, {args.threads} thread(s), beside: "
-                           + (", ".join(cell_name(*c, args.steps, args.step_one) for c in running) or "no other cell"))
+                log, name = open(out / "log.txt", "a"), cell_name(*cell, args.steps, args.step_one)
+                beside = [cell_name(*c, args.steps, args.step_one) for c in running]
+                stamp(log, f"start, {args.threads} thread(s), beside: {' + '.join(beside) or 'no other cell'}")
+                for *_, others in running.values():  # every cell that runs during a stretch is named at its end
+                    others.append(name)
                 running[cell] = (subprocess.Popen([sys.executable, *command(*cell, args, args.threads)[1:]], stdout=log,
-                                                  stderr=subprocess.STDOUT, cwd=ROOT), log, time.time(), lock)
+                                                  stderr=subprocess.STDOUT, cwd=ROOT), log, time.time(), lock, beside)
                 print(f"started {' '.join(map(str, cell))} ({len(todo)} waiting)", flush=True)
             time.sleep(5)
             for cell, (proc, *_) in list(running.items()):
@@ -195,14 +197,20 @@ SAVE_WAIT = 300  # [s] a cell's time to save its checkpoint (its replay buffer) 
 
 def wall_times(results: Path) -> list[str]:
     """Each cell's wall time (training and evaluation) from the grid's stamps in its log.txt, stretch by stretch:
-    a cell that spans sessions resumes from its checkpoint, and the stretches add up."""
-    lines = ["| cell | wall time [h] | stretches | beside, at each start (load) |", "|---|---|---|---|"]
+    a cell that spans sessions resumes from its checkpoint, and the stretches add up. A stretch's end stamp names
+    every cell that ran beside it; its start stamp, those at its start (all that older stamps have)."""
+    lines = ["| cell | wall time [h] | stretches | each stretch: threads, beside (load at its start) |", "|---|---|---|---|"]
     for path in sorted((results / "runs").glob("*/log.txt")):
         stamps = re.findall(r"^# grid [^:]+:\d\d:\d\d UTC: (.*)$", path.read_text(), re.M)
         minutes = [float(m) for text in stamps for m in re.findall(r"after ([\d.]+) min", text)]
-        beside = [re.sub(r"^start, ", "", text) for text in stamps if text.startswith("start")]
+        stretches = []
+        for text in stamps:
+            if text.startswith("start, "):
+                stretches.append(text.removeprefix("start, "))
+            elif stretches and (ran := re.search(r", beside: (.*), load", text)):  # the end names all beside it
+                stretches[-1] = re.sub(r"beside: .*, load", f"beside: {ran[1]}, load", stretches[-1])
         if minutes:
-            lines.append(f"| {path.parent.name} | {sum(minutes) / 60:.2f} | {len(minutes)} | {'; '.join(beside)} |")
+            lines.append(f"| {path.parent.name} | {sum(minutes) / 60:.2f} | {len(minutes)} | {'; '.join(stretches)} |")
     return lines
 
 
@@ -437,8 +445,9 @@ def collect(args):
               "Of the same test cases, those where exactly one of the two arrives (the budget is the other row's; TARL's "
               "the same, or the default where TARL has no cell at that budget):", "", *case_by_case(found), "",
               "## Wall time of each cell", "", "From the grid's stamps in each cell's log.txt (cells run before the "
-              "stamps have none): training and evaluation, summed over the stretches a cell ran in, and what ran beside "
-              "each stretch when it started.", "", *wall_times(args.results), ""]
+              "stamps have none): training and evaluation, summed over the stretches a cell ran in, and for each stretch "
+              "the cells that ran beside it at any time (a stretch stamped before 2026-12-03 22:00 UTC names only those "
+              "beside it when it started) and the load when it started.", "", *wall_times(args.results), ""]
     (args.results / "table3.md").write_text("\n".join(lines))
     if args.readme:
         write_readme(found, ROOT / "README.md")
