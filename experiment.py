@@ -32,6 +32,7 @@ from pathlib import Path
 import tarl  # noqa: I001 (first: it sets OpenMP's wait policy before torch loads)
 import baselines
 import numpy as np
+import rollout_timing
 import torch
 import variants
 import world
@@ -93,7 +94,10 @@ def trained_rows(trainer) -> list[dict]:
 
 
 def timing_override(spec: str, trainer) -> Driver:
-    """--timing of a loaded model: learned, phased, random, fixed=T or cap=T, with the model's actor."""
+    """--timing of a loaded model: learned, phased, random, fixed=T, cap=T or rollout[=T1,T2,...], with the model's
+    actor."""
+    if (cfg := rollout_timing.parse(spec)) is not None:
+        return rollout_timing.RolloutTiming(trainer.actor, trainer.seed, trainer.tc.timing, cfg)
     name, _, value = spec.partition("=")
     timing = {"learned": "taker", "cap": "taker"}.get(name, name)
     return Driver(timing, trainer.actor, trainer.timing_taker, trainer.seed, trainer.tc.timing,
@@ -141,7 +145,7 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
     ep = {key: [] for key in ("a", "T", "beta", "a_base", "a_bar", "v") + ("ego", "others", "plan") * record}
     start, done = env.fingerprint(), False
     while not done:
-        a, T, b = driver.act(obs, env, deterministic)
+        a, T, b = driver.act(obs, env, deterministic)  # a rollout timing branches here, and restores the env
         env.show(T, b)  # who drives: for render() and sumo-gui
         for key, value in (("a", np.nan if a is None else a[0]), ("T", T or 0), ("beta", b), ("v", env.v),
                            ("a_base", env.base_action() if b < 1.0 or record else np.nan), ("a_bar", execute(env, a, b))):
@@ -154,7 +158,8 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
         done = terminated or truncated
     outcome = "collision" if info["collision"] else "arrival" if info["arrival"] else "timeout"
     return dict(start=start, outcome=outcome, crossing_time=info["crossing_time"], steps=len(ep["a"]),
-                **{k: v if k in ("others", "plan") else np.array(v) for k, v in ep.items()})
+                **{k: v if k in ("others", "plan") else np.array(v) for k, v in ep.items()},
+                **getattr(driver, "stats", dict)())  # a rollout timing's decisions, branch steps, wall time
 
 
 def test_seed(seed: int, round_: int) -> int:
@@ -255,8 +260,8 @@ def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: in
     else:
         done = ((r, play_round(env, drivers, cases, seed, r)) for r in todo)
     for n, (r, result) in enumerate(done, 1):
-        played[r] = [[{k: ep[k].tolist() if k in ("beta", "T") else ep[k] for k in KEPT} for ep in eps]
-                     for eps in result]  # what summarize needs, as JSON keeps it
+        played[r] = [[{k: ep[k].tolist() if k in ("beta", "T") else ep[k] for k in KEPT + BRANCHING if k in ep}
+                      for ep in eps] for eps in result]  # what summarize needs, as JSON keeps it
         if keep is not None:
             keep.mkdir(parents=True, exist_ok=True)
             (keep / f"round{r}.json").write_text(json.dumps(dict(key=key, rows=played[r])))
@@ -269,11 +274,13 @@ def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: in
 
 CASE_KEYS = ("round", "case", "start", "outcome", "crossing_time", "steps")  # of each case, in eval.json
 KEPT = (*CASE_KEYS, "beta", "T")  # of an episode: what summarize needs
+BRANCHING = ("decisions", "branch_steps", "wall_s")  # of a case played by a rollout timing (rollout_timing.py)
 
 
 def evaluation_key(cfg: EnvConfig, rows: list[dict], cases: int, seed: int) -> str:
     """What a kept round was played with: the scenario, seed, cases per round, each row's algo, timing and weights."""
-    timings = [(d.timing, asdict(d.timing_cfg), d.fixed_T, d.cap) for d in (row["driver"] for row in rows)]
+    timings = [(d.timing, asdict(d.timing_cfg), d.fixed_T, d.cap, *([d.settings] if hasattr(d, "settings") else []))
+               for d in (row["driver"] for row in rows)]
     h = hashlib.sha1(repr((asdict(cfg), cases, seed, [row["algo"] for row in rows], timings)).encode())
     for net in (n for row in rows for n in (row["driver"].actor, row["driver"].timing_taker) if n is not None):
         module = getattr(net, "policy", net)
@@ -321,17 +328,19 @@ def summarize(row: dict, rounds: list[list[dict]], cfg: EnvConfig, seed: int) ->
            "rounds_without_success": sum(not c for c in crossing)}
     episodes, driver = [ep for r in rounds for ep in r], row["driver"]
     crashes, k3, k1 = [ep for ep in episodes if ep["outcome"] == "collision"], round(3.0 / cfg.dt), round(1.0 / cfg.dt)
-    if driver.timing in ("taker", "phased", "fixed", "random", "switch"):
+    if driver.timing in ("taker", "phased", "fixed", "random", "switch", "rollout"):
         minus = lambda b: float(np.mean(1.0 - np.concatenate(b))) if b else None  # noqa: E731
         out["beta_minus"] = {"all_steps": minus([ep["beta"] for ep in episodes]),
                              "3s_before_collision": minus([ep["beta"][-k3:] for ep in crashes]),
                              "1s_before_collision": minus([ep["beta"][-k1:] for ep in crashes])}
-    if driver.timing in ("taker", "phased", "random"):
+    if driver.timing in ("taker", "phased", "random", "rollout"):
         n = driver.timing_cfg.t_max
         share = lambda T: (np.bincount(np.concatenate(T), minlength=n + 1)[1:] / sum(map(len, T))).round(4).tolist()  # noqa: E731
         out["timing_share"] = {"all_steps": share([ep["T"] for ep in episodes]),  # of T = 1, ..., T_max
                                "3s_before_collision": share([ep["T"][-k3:] for ep in crashes]) if crashes else None}
-    out["cases"] = [{k: ep[k] for k in CASE_KEYS} for ep in episodes]
+    if "branch_steps" in episodes[0]:  # a rollout timing: per case, its decisions, the steps of its branches
+        out["branching"] = {k: mean_std([np.mean([ep[k] for ep in r]) for r in rounds]) for k in ("steps", *BRANCHING)}
+    out["cases"] = [{k: ep[k] for k in (*CASE_KEYS, *BRANCHING) if k in ep} for ep in episodes]
     return out
 
 
@@ -361,9 +370,14 @@ PRESETS = {"lab": dict(steps=30_000, eval_rounds=2, eval_cases=50)}  # a curve a
 def timing_error(spec: str, algo: str) -> str | None:
     """What is wrong with --timing SPEC for a loaded actor of --algo ALGO (timing_override), or None."""
     name, eq, value = spec.partition("=")
+    try:
+        if rollout_timing.parse(spec) is not None:
+            return None
+    except ValueError as e:
+        return str(e)
     if name not in ("learned", "phased", "random", "fixed", "cap") or (name in ("fixed", "cap")) != bool(eq) \
             or (eq and not (value.isdigit() and int(value) >= 1)):
-        return f"{spec}: choose learned, phased, random, fixed=T or cap=T with T >= 1"
+        return f"{spec}: choose learned, phased, random, fixed=T, cap=T with T >= 1, or rollout[=T1,T2,...]"
     if name in ("learned", "phased", "cap") and ROWS[algo].timing not in ("taker", "phased"):
         return f"{name} needs a timing taker: --algo {algo} has none"
     return None
@@ -400,7 +414,8 @@ def parse_args(argv=None):
     g.add_argument("--omega", type=float, help=f"w of Eq. (6) (default: the checkpoint's, else {TimingConfig.omega})")
     g.add_argument("--t-max", type=int, help=f"T_max [steps] of a run to train (default {TimingConfig.t_max})")
     g.add_argument("--timing", metavar="SPEC", help="with --load: how the loaded actor's T is chosen: learned, phased "
-                   "(Eq. (7)'s schedule), random, fixed=T or cap=T (the timing taker's T, at most T)")
+                   "(Eq. (7)'s schedule), random, fixed=T, cap=T (the timing taker's T, at most T) or rollout[=T1,T2,...] "
+                   "(the T of the best simulated branch, rollout_timing.py)")
     w = p.add_argument_group("traffic (Table 1)")
     w.add_argument("--spawn-gap", type=float, help="t_spawn [s]: mean gap between departures (default: the scenario's)")
     w.add_argument("--svo", type=float, nargs=2, metavar=("LOW", "HIGH"), help="range of the humans' alpha_svo of "

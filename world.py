@@ -13,6 +13,7 @@ cited as "PAPER.md, note n").
     Eqs. (24)-(26) level-k game   game_utility, outcome_terms, level_k_decisions, DrivingEnv._play_level_k
     Eqs. (27)-(30) observation    SECTORS, sector_index, observe;  Eq. (31): reward
     Sec. 5.3 test cases           DrivingEnv.record_cases, reset(options={"case": ...}), fingerprint
+    Branching (beyond the paper)  DrivingEnv.save_state, restore_state, resample_future
     Eqs. (18)-(23) base action    DrivingEnv.plan, base_action (planner.py)
     Watching it                   DrivingEnv.render (scene.py draws), snapshot, show; make (gymnasium.make)
 """
@@ -312,10 +313,7 @@ class DrivingEnv(gymnasium.Env):
                 # "max": the depart speed, lowered by SUMO if that is unsafe behind a queue
                 sim.vehicle.add(EGO, self.task["route"], typeID="egotype", depart="now",
                                 departLane=str(self.task["lane"]), departPos="0", departSpeed="max")
-                sim.vehicle.setSpeedFactor(EGO, c.ego_depart_speed / sim.lane.getMaxSpeed(self.task["first"]))
-                sim.vehicle.setSpeedMode(EGO, 32)  # SUMO never overrides the ego (PAPER.md, SUMO)
-                sim.vehicle.setLaneChangeMode(EGO, 0)
-                sim.vehicle.setColor(EGO, (255, 0, 0, 255))
+                self._ego_modes()
             self._spawn_humans()
             sim.simulationStep()
             if free and EGO in sim.vehicle.getIDList():
@@ -324,10 +322,7 @@ class DrivingEnv(gymnasium.Env):
                 sim.vehicle.remove(EGO)
         else:
             raise RuntimeError("no free lane to spawn the ego for 60 s: the traffic is jammed")
-        V = self.V
-        sim.vehicle.subscribe(EGO, [V.VAR_POSITION, V.VAR_ANGLE, V.VAR_SPEED, V.VAR_LANE_ID, V.VAR_LANEPOSITION])
-        sim.vehicle.subscribeContext(EGO, V.CMD_GET_VEHICLE_VARIABLE, c.perception,
-                                     [V.VAR_POSITION, V.VAR_SPEED, V.VAR_ANGLE])
+        self._subscribe()
         self.ego_alive, self.t_spawn, self.accel, self.waited, self._headings = True, sim.simulation.getTime(), 0.0, 0.0, {}
         self.shown = (None, None)  # who drives: nobody has said yet (show)
         if self.gui:  # follow the ego at a readable zoom [%]
@@ -445,10 +440,10 @@ class DrivingEnv(gymnasium.Env):
                 limit = math.sqrt(2.0 * b * max(0.0, stop))
             if k == YIELD and limit < vh + a * c.dt:  # the stopping profile binds: cap the speed
                 sim.vehicle.setSpeed(h, limit)
-                self.capped.add(h)
+                self.capped[h] = limit
             elif h in self.capped:
                 sim.vehicle.setSpeed(h, -1)
-                self.capped.discard(h)
+                del self.capped[h]
 
     def _release(self, h):
         """Hand a human back to SUMO's own driving."""
@@ -459,7 +454,7 @@ class DrivingEnv(gymnasium.Env):
                 self.sim.vehicle.setSpeed(h, -1)
         except self.sim.TraCIException:  # it has left the network
             pass
-        self.capped.discard(h)
+        self.capped.pop(h, None)
 
     # ---- The observation: Eqs. (27)-(30) -----------------------------------------------------
     def _read(self):
@@ -522,7 +517,7 @@ class DrivingEnv(gymnasium.Env):
         self.n_humans = 0
         self.humans: dict[str, np.ndarray] = {}  # id -> alpha1..4, svo, decel, accel, game speed (_spawn_humans)
         self.decisions: dict[str, int] = {}  # humans now playing the game -> CROSS / YIELD
-        self.capped: set[str] = set()  # yielding humans whose speed is capped
+        self.capped: dict[str, float] = {}  # yielding humans whose speed is capped -> the cap [m/s]
         if self.tasks is None:  # the network's, read once (every test case starts a new simulation)
             self.tasks = self._ego_tasks()
             self.internal_lanes = [lane for lane in sim.lane.getIDList() if lane.startswith(":")]
@@ -645,16 +640,20 @@ class DrivingEnv(gymnasium.Env):
                               humans={h: p for h, p in self.humans.items() if h in alive}))
         return cases
 
-    def _load_case(self, case: dict):
+    def _load(self, file: str, seed: int):
         # loadState keeps something of the run before it (SUMO 1.28, PAPER.md): a lane that held vehicles
         # can keep the one then inserted on it from moving, and after an episode that had played the case's
         # first step a waiting human entered a step late. A new simulation (~10 ms) before each load makes
-        # a case's start the same whatever ran before.
-        self._start(case["seed"][0], warmup=False)
-        self.sim.simulation.loadState(case["file"])
-        self.humans, self.n_humans, self.decisions, self.capped = dict(case["humans"]), case["n_humans"], {}, set()
+        # a state continue the same whatever ran before.
+        self._start(seed, warmup=False)
+        self.sim.simulation.loadState(file)
         for h in self.sim.vehicle.getIDList():
-            self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it
+            if h != EGO:
+                self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it
+
+    def _load_case(self, case: dict):
+        self._load(case["file"], case["seed"][0])
+        self.humans, self.n_humans, self.decisions, self.capped = dict(case["humans"]), case["n_humans"], {}, {}
         self.rng = np.random.default_rng(case["seed"])
         self.t_start = self.sim.simulation.getTime()
         self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
@@ -666,6 +665,50 @@ class DrivingEnv(gymnasium.Env):
                           for v in self.sim.vehicle.getIDList())
         state = (vehicles, self.task["route"], self.next_spawn, self.rng.bit_generator.state)
         return hashlib.sha1(repr(state).encode()).hexdigest()[:16]
+
+    # ---- Branching: the whole state saved, restored, and its future drawn anew ---------------------
+    # What SUMO's file does not hold, and what _read saw: right after a load, before a step, libsumo's context
+    # subscription still returns vehicles of the simulation before it (SUMO 1.28), so the state is not read anew
+    OWN_STATE = ("humans", "n_humans", "decisions", "capped", "t_start", "next_spawn", "task", "t_spawn", "accel",
+                 "waited", "_headings", "shown", "jam_removals", "v", "heading", "xy", "s", "others", "obs")
+
+    def save_state(self, file) -> dict:
+        """The whole state between two steps of an episode, for restore_state: SUMO's (saveState to `file`, every
+        digit and its rng) and the env's own (OWN_STATE, the traffic's rng)."""
+        if not self.ego_alive:
+            raise RuntimeError("save_state() saves an episode under way: call it between reset() and its end")
+        self.sim.simulation.saveState(str(file))
+        own = {k: dict(v) if isinstance(v, dict) and k != "task" else v for k, v in vars(self).items() if k in self.OWN_STATE}
+        return dict(file=str(file), env=own, rng=self.rng.bit_generator.state)
+
+    def restore_state(self, state: dict) -> np.ndarray:
+        """Back to a save_state(); returns the observation. A new simulation loads SUMO's file: two restores of one
+        state continue alike step for step, though not exactly as the run that was saved (SUMO 1.28 reloads
+        positions to about 1 cm: PAPER.md, SUMO). Then the env's own state, and what SUMO's file forgets: the
+        humans' game (who ignores the ego, speed caps), the ego's driving modes and subscriptions."""
+        self._load(state["file"], 0)  # SUMO's rng comes from the file (--save-state.rng)
+        for k, v in state["env"].items():
+            setattr(self, k, dict(v) if isinstance(v, dict) and k != "task" else v)
+        self.rng = np.random.default_rng()
+        self.rng.bit_generator.state = state["rng"]
+        for h, k in self.decisions.items():
+            self.sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
+        for h, limit in self.capped.items():
+            self.sim.vehicle.setSpeed(h, limit)
+        self._ego_modes()
+        self._subscribe()
+        self.ego_alive, self._plan = True, None
+        return self.obs
+
+    def resample_future(self, rng: np.random.Generator):
+        """Draw from rng anew what the ego cannot know (a branch that must not see its test case's future): the
+        game weights and SVO of the humans present (Table 1's ranges; their kinematics are in SUMO's state and
+        show in how they drive) and every departure to come, its time, route and parameters."""
+        ranges = HUMAN_RANGES if self.cfg.svo_range is None else {**HUMAN_RANGES, "svo": self.cfg.svo_range}
+        for h, p in self.humans.items():
+            self.humans[h] = np.r_[[rng.uniform(*ranges[k]) for k in ("alpha1", "alpha2", "alpha3", "alpha4", "svo")], p[5:]]
+        self.rng = rng
+        self.next_spawn = self.sim.simulation.getTime() + rng.exponential(self.spawn_gap)  # departures are memoryless
 
     # ---- Helpers -----------------------------------------------------------------------------
     def show(self, T: int | None, beta: float | None):
@@ -702,6 +745,21 @@ class DrivingEnv(gymnasium.Env):
         self._renderer = self._renderer or scene.Renderer(self.net_file)
         return self._renderer.frame(self.snapshot())
 
+    def _ego_modes(self):
+        """The ego's driving modes (SUMO forgets them in a saved state)."""
+        sim = self.sim
+        sim.vehicle.setSpeedFactor(EGO, self.cfg.ego_depart_speed / sim.lane.getMaxSpeed(self.task["first"]))
+        sim.vehicle.setSpeedMode(EGO, 32)  # SUMO never overrides the ego (PAPER.md, SUMO)
+        sim.vehicle.setLaneChangeMode(EGO, 0)
+        sim.vehicle.setColor(EGO, (255, 0, 0, 255))
+
+    def _subscribe(self):
+        """What _read reads each step: the ego, and every vehicle within d_max of it."""
+        V = self.V
+        self.sim.vehicle.subscribe(EGO, [V.VAR_POSITION, V.VAR_ANGLE, V.VAR_SPEED, V.VAR_LANE_ID, V.VAR_LANEPOSITION])
+        self.sim.vehicle.subscribeContext(EGO, V.CMD_GET_VEHICLE_VARIABLE, self.cfg.perception,
+                                          [V.VAR_POSITION, V.VAR_SPEED, V.VAR_ANGLE])
+
     def _info(self, collided, arrived, timeout, t):
         return dict(collision=collided, arrival=arrived, timeout=timeout, crossing_time=t if arrived else None,
                     cost=float(collided))
@@ -737,7 +795,7 @@ class DrivingEnv(gymnasium.Env):
         for h in gone:
             self.humans.pop(h, None)
             self.decisions.pop(h, None)
-            self.capped.discard(h)
+            self.capped.pop(h, None)
 
 
 def make(render_mode: str | None = None, **fields) -> DrivingEnv:
