@@ -1,10 +1,14 @@
 """The speed benchmark runs end to end (a smoke test: no timing is asserted, the machine is shared)."""
 import json
+import math
+import re
 import subprocess
 import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import speed  # noqa: E402
@@ -86,7 +90,8 @@ def test_table3_rewrites_only_the_readme_blocks_between_its_markers(tmp_path):
     tarl_lines = [line for line in once.splitlines() if line.startswith("| TARL |")]
     assert len(tarl_lines) == 2  # both blocks; the paper's values only in the results block
     # the only row, so the best (bold)
-    assert tarl_lines[0].startswith("| TARL | 2 | **0.850 +- 0.050 (0.010)** |") and "0.881 (0.021)" in tarl_lines[0]
+    assert tarl_lines[0].startswith("| TARL | n = 2 | **0.850 +- 0.050 (0.010)** | 0.150 / 0.000 | 20.0 | "
+                                    "0.881 (0.021), 8.5 s | - | - | - | - |"), tarl_lines[0]
     assert "0.881" not in tarl_lines[1]
 
 
@@ -170,9 +175,11 @@ def test_table3_sets_the_papers_budget_beside_the_default_one_of_the_same_seed(t
                                                              ["collision", "arrival", "arrival", "arrival"])]),
         ("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.7, "a")])])
     lines = table3.budget_block(found, ("sac-lag", "sac", "cpo"))
-    # case by case against TARL's 500k cell: TARL alone arrives in cases 1 and 2, SAC-Lag alone in case 0
-    assert "| roundabout | SAC-Lag | 0.950 (0.050 / 0.000) | 20.0 | 0.900 (0.100 / 0.000) | 20.0 | 0.872 | 2 / 1 |" in lines
-    assert "| roundabout | SAC | not run | - | 0.700 (0.300 / 0.000) | 20.0 | - | - |" in lines
+    # case by case against TARL's 500k cell: TARL alone arrives in cases 1 and 2, SAC-Lag alone in case 0; TARL's
+    # success minus SAC-Lag's in the one round, 3/4 - 2/4, with its interval over rounds; no band without TARL's seeds
+    assert ("| roundabout | SAC-Lag | n = 1 | 0.950 (0.010) | 0.050 / 0.000 | 20.0 | 0.900 | 0.872 | "
+            "+0.250 [+0.250, +0.250] | - | 2 / 1 |") in lines, lines
+    assert "| roundabout | SAC | n = 1 | not run | - | - | 0.700 | - | - | - | - |" in lines
     assert len(lines) == 4  # the header, its rule, and no line for a row with no cell of seed 0 at all
 
 
@@ -247,3 +254,66 @@ def test_heldout_sets_each_row_beside_the_first_case_by_case(tmp_path):
     assert "| roundabout | 0.9 | tarl | 4 | 0.500 | 0.250 | 0.250 | 20.0 | - |" in lines
     assert "| roundabout | 0.9 | tarl-fixed-t | 4 | 0.750 | 0.250 | 0.000 | 20.0 | 2 / 1, p 1 |" in lines
     assert sum(line.startswith("| roundabout") for line in lines) == 2  # none of tarl-random-t
+
+
+def test_table3_writes_n_beside_every_row_and_a_one_seed_row_without_a_spread_over_seeds(tmp_path):
+    """A row of one seed shows its per-round spread and "n = 1", never "+- 0.000" (issue 41)."""
+    _results(tmp_path, [("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.8, "abc")]),
+                        ("roundabout-sac-s1", "roundabout", 1, [_row("sac", 1, 0.9, "abc")]),
+                        ("roundabout-tarl-s0-500k", "roundabout", 0, [_row("tarl", 0, 0.95, "abc")])])
+    args = table3.argparse.Namespace(results=tmp_path, rounds=10, cases=200, readme=False)
+    text = table3.collect(args)
+    table = (tmp_path / "table3.md").read_text()
+    assert "| SAC (100 steps) | n = 2 | 0.850 +- 0.050 (0.010) |" in table
+    assert "| TARL (100 steps) | n = 1 | 0.950 (0.010) |" in table
+    one_seed = [line for line in table.splitlines() if "| n = 1 |" in line]
+    ours = [cell for line in one_seed for cell in line.split(" | ")[2:7]]  # not the paper's columns
+    assert one_seed and text and ours and not any("+-" in cell for cell in ours), one_seed
+
+
+def test_the_claims_rule_holds_fails_or_leaves_a_difference_within_the_spread():
+    """Beyond twice the spread of the difference either way, a claim holds or fails; else it is within the spread.
+    Two budgets: the one that is not within the spread, or both where they contradict."""
+    assert table3.verdict(0.21, 0.1) == "holds" and table3.verdict(-0.21, 0.1) == "fails"
+    assert table3.verdict(0.19, 0.1) == table3.verdict(-0.19, 0.1) == "within the spread"
+    assert table3.combined("holds", "within the spread") == table3.combined("within the spread", "holds") == "holds"
+    assert table3.combined("within the spread", "within the spread") == "within the spread"
+    assert table3.combined("holds", "fails") == "holds at 10^5, fails at 5 x 10^5"
+
+
+def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_the_rule():
+    """RESULTS.md's claims table against the committed eval.json files, recomputed here without table3's code:
+    each claim's differences at both budgets, the spread of the difference sqrt(s_A^2 + s_B^2) (std over the
+    three seeds at 10^5, ddof = 0) and the verdict: beyond 2 x the spread holds or fails, else within the spread."""
+    root = Path(__file__).resolve().parent
+    runs = root / "results" / "runs"
+    label = {name: algo for algo, name in table3.NAMES.items()}
+
+    def values(scenario, algo, key, suffix=""):
+        host = "tarl" if algo in ("lattice-idm", "tarl-step1") else algo
+        out = []
+        for seed in (0,) if suffix else (0, 1, 2):
+            data = json.loads((runs / f"{scenario}-{host}-s{seed}{suffix}" / "eval.json").read_text())
+            out.append(next(r for r in data["rows"] if r["algo"] == algo)[key]["mean"])
+        return np.array(out)
+
+    block = (root / "RESULTS.md").read_text().split("<!-- table3.py claims -->")[1].split("<!-- /table3.py -->")[0]
+    lines = [line for line in block.strip().splitlines()[2:]]
+    assert len(lines) == len(table3.CLAIMS) >= 10
+    for line in lines:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        m = re.match(r"(intersection|roundabout): (.+) (succeeds more often than|crosses sooner than) (.+)$", cells[0])
+        scenario, a, word, b = m[1], label[m[2]], m[3], label[m[4]]
+        key, sign = ("success_rate", 1) if word.startswith("succeeds") else ("crossing_time", -1)
+        seeds_a, seeds_b = values(scenario, a, key), values(scenario, b, key)
+        spread = math.sqrt(seeds_a.std() ** 2 + seeds_b.std() ** 2)
+        rule = lambda d: "holds" if d > 2 * spread else "fails" if d < -2 * spread else "within the spread"  # noqa: E731
+        d_short = sign * (seeds_a.mean() - seeds_b.mean())
+        d_long = sign * (values(scenario, a, key, "-500k")[0] - values(scenario, b, key, "-500k")[0])
+        digits = 3 if key == "success_rate" else 1
+        for cell, d in ((cells[2], d_short), (cells[3], d_long)):
+            assert cell.startswith(f"{d:+.{digits}f} ± {2 * spread:.{digits}f}"), (line, d, spread)
+            assert cell.endswith(rule(d)), (line, d, spread)
+        verdicts = {rule(d_short), rule(d_long)} - {"within the spread"}
+        expected = verdicts.pop() if len(verdicts) == 1 else "within the spread" if not verdicts else None
+        assert cells[4] == f"**{expected or f'{rule(d_short)} at 10^5, {rule(d_long)} at 5 x 10^5'}**", line

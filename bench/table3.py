@@ -12,7 +12,11 @@ train_log.csv, constraint_log.csv (safe-RL rows) and policy.pt go to results/run
 --commit, committed: an interruption loses at most the cells in progress, which resume from their
 checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
 The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
-beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value.
+beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value, with the number of
+seeds (n) beside every row; a row of one seed shows its mean and per-round std, no +- over seeds. With
+--readme it also writes RESULTS.md's table of the paper's claims, each with a verdict by the rule of
+`verdict` (RESULTS.md, "How the numbers were made"), and the paired differences at the paper's budget
+with a 95 % interval over the rounds resampled.
 """
 import argparse
 import fcntl
@@ -34,14 +38,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import experiment  # noqa: E402
 import tarl  # noqa: E402
+from exercises import paired  # noqa: E402
 SCENARIOS = ("intersection", "roundabout")
 ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
 # TARL's cell is the default command: it evaluates Lattice-IDM (and TARL's step-1 model) on the same
 # cases, so Lattice-IDM has no cell of its own
 RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
-# Beyond Table 3 (RESULTS.md, "What the timing adds"): TARL's ablations without a timing taker, two variants whose
-# T means the same in both loops, one whose timing taker updates more, and two that give it the signal it lacks
-# (variants.py) (PAPER.md, 6; not in the README's headline)
+# Beyond Table 3 (RESULTS.md, "What the timing adds", "Beyond the paper"): TARL's ablations without a timing taker,
+# two variants whose T means the same in both loops, one whose timing taker updates more, and three that give it the
+# signal it lacks (variants.py) (PAPER.md, 6; not in the README's headline)
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t", "tarl-consistent", "tarl-held", "tarl-utd", "tarl-actor-target",
              "tarl-rare-replay", "tarl-min-target")
 NAMES = {algo: row.label for algo, row in experiment.ROWS.items()} | {"tarl-step1": "TARL step 1"}
@@ -234,10 +239,16 @@ def over_seeds(rows: dict, key: str):
 
 
 def cell_text(stats, digits):
+    """mean +- std over seeds (mean per-round std); one seed has no spread over seeds: mean (its per-round std)."""
     if stats is None:
         return "-"
     mean, seed_std, round_std, n = stats
-    return f"{mean:.{digits}f} +- {seed_std:.{digits}f} ({round_std:.{digits}f}, {n})"
+    return f"{mean:.{digits}f}" + f" +- {seed_std:.{digits}f}" * (n > 1) + f" ({round_std:.{digits}f})"
+
+
+def n_text(rows: dict) -> str:
+    """The seeds behind a row, written beside it: "n = 3"."""
+    return f"n = {len(rows)}"
 
 
 def same_cases(found: dict) -> list[str]:
@@ -284,12 +295,13 @@ def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> lis
 
 TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL's cell
 # The blocks that --readme writes, by NAME, wherever a `<!-- table3.py NAME -->` marker stands in README.md or
-# RESULTS.md: (rows, kind). "compact": README.md's headline, mean +- std over seeds beside Table 3's success, the
-# ablations in italics; "paper": RESULTS.md's Table 3, with the mean per-round std and Table 3's values; "full": the
-# same without Table 3's values (RESULTS.md, "What the timing adds").
-README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS[:2]), "compact"), "results": (TABLE_ROWS, "paper"),
-               "timing": (("tarl", *ABLATIONS, "sac", "lattice-idm"), "full"),
-               "budget": ((*TABLE_ROWS, *ABLATIONS[:2]), "budget")}
+# RESULTS.md: (rows, kind). "side": both scenarios side by side with each row's seeds (RESULTS.md, "Beyond the
+# paper"); "paper": the same with Table 3's values beside ours, the best of Table 3's rows in bold and the ablations in
+# italics (README.md's headline, RESULTS.md's Table 3); "budget": the paper's budget on one
+# seed with TARL's paired differences; "claims": the paper's claims with their verdicts (RESULTS.md's top).
+README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS[:2]), "paper"), "results": (TABLE_ROWS, "paper"),
+               "timing": (("tarl", *ABLATIONS), "side"),
+               "budget": ((*TABLE_ROWS, *ABLATIONS[:2]), "budget"), "claims": ((), "claims")}
 PAPER_BUDGET = (500_000, None)  # the paper's training steps (Table 2), as (steps, step 1)
 RATES = ("success_rate", "collision_rate", "timeout_rate")  # of each row of eval.json, in the tables' column order
 
@@ -313,54 +325,149 @@ def each_seed(found: dict) -> list[str]:
     return lines
 
 
-def readme_block(found: dict, algos, paper: bool) -> list[str]:
-    """The README's tables at the default budget, one per scenario: mean +- std over seeds, in brackets the mean
-    per-round std (success and crossing time), the best success in bold, and Table 3's values if `paper`."""
-    def text(stats, digits, rounds):
-        if stats is None:
-            return "-"
-        mean, seed_std, round_std, n = stats
-        return f"{mean:.{digits}f}" + f" +- {seed_std:.{digits}f}" * (n > 1) + f" ({round_std:.{digits}f})" * rounds
-    lines = []
-    for scenario in SCENARIOS:
-        lines += [f"**{scenario.capitalize()}**", "", "| model | seeds | success | collision | timeout | crossing [s] |"
-                  + " paper success | paper crossing [s] |" * paper, "|---|---|---|---|---|---|" + "---|---|" * paper]
-        table = {algo: found.get(DEFAULT, {}).get((scenario, algo)) for algo in algos}
-        table = {algo: {k: over_seeds(rows, k) for k in (*RATES, "crossing_time")}
-                 | {"seeds": len(rows)} for algo, rows in table.items() if rows}
-        best = max((stats["success_rate"] or (0,))[0] for stats in table.values()) if table else None
-        for algo, stats in table.items():
-            ref, bold = PAPER[scenario].get(algo), "**" * ((stats["success_rate"] or (None,))[0] == best)
-            lines.append(f"| {NAMES[algo]} | {stats['seeds']} | {bold}{text(stats['success_rate'], 3, True)}{bold} | "
-                         f"{text(stats['collision_rate'], 3, False)} | {text(stats['timeout_rate'], 3, False)} | "
-                         f"{text(stats['crossing_time'], 1, True)} |"
-                         + (f" {ref[0]:.3f} ({ref[1]:.3f}) | {ref[2]:.3f} ({ref[3]:.3f}) |" if ref else " - | - |") * paper)
-        lines.append("")
-    return lines[:-1]
+def paired_difference(a: dict, b: dict, seed: int = 0) -> str:
+    """a's success minus b's on the cases both played, with a 95 % percentile interval whose resampling unit is the
+    round: the 10 rounds' differences resampled 10,000 times (exercises.paired's bootstrap, seeded)."""
+    mean, low, high = paired.bootstrap([paired.per_round_difference(a, b)], 10_000, np.random.default_rng(seed))
+    return f"{mean:+.3f} [{low:+.3f}, {high:+.3f}]"
+
+
+def spread_of_difference(found: dict, scenario: str, a: str, b: str, key: str = "success_rate") -> float:
+    """sqrt(s_a^2 + s_b^2), s the std over seeds (ddof = 0) of each row's seed means at the default budget: how far
+    apart one seed of each may land (the verdict rule's spread)."""
+    return float(np.hypot(*(over_seeds(found[DEFAULT][(scenario, algo)], key)[1] for algo in (a, b))))
+
+
+def band(found: dict, scenario: str, algo: str) -> str:
+    """BAND x the spread of TARL's difference to `algo`, or "-" where either has fewer than two seeds at the default
+    budget."""
+    if any(len(found.get(DEFAULT, {}).get((scenario, x), {})) < 2 for x in ("tarl", algo)):
+        return "-"
+    return f"{BAND * spread_of_difference(found, scenario, 'tarl', algo):.3f}"
 
 
 def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list[str]:
-    """RESULTS.md's Table 3 at the paper's budget, one seed: each row's success (collisions / timeouts) and crossing
-    time after `budget` steps beside the same seed's at the default budget and Table 3's success; "not run" where a
-    row has no cell at that budget yet. Case by case against TARL at that budget: the cases only TARL arrives in /
+    """RESULTS.md's Table 3 at the paper's budget, one seed (n = 1): each row's success with its per-round std,
+    collisions / timeouts and crossing time after `budget` steps, beside the same seed's success at the default budget
+    and Table 3's; "not run" where a row has no cell at that budget yet. Paired against TARL at that budget on the same
+    cases: TARL's success minus the row's with a 95 % interval over the 10 rounds resampled, BAND x the spread of
+    that difference over seeds at the default budget (the verdict rule's band), and the cases only TARL arrives in /
     only the row does."""
-    def text(row):
-        if row is None:
-            return "not run", "-"
-        rates = "{:.3f} ({:.3f} / {:.3f})".format(*(row[k]["mean"] for k in RATES))
-        return rates, "-" if row["crossing_time"]["mean"] is None else f"{row['crossing_time']['mean']:.1f}"
-    lines = [f"| scenario | model | success (collisions / timeouts), {budget[0]:,} steps | crossing [s] | the same at "
-             f"{STEPS:,} steps | crossing [s] | paper success | only TARL / only it arrives, {budget[0]:,} steps |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [f"| scenario | model | seeds | success, {budget[0]:,} steps (per-round std) | collisions / timeouts | "
+             f"crossing [s] | success, {STEPS:,} steps | paper | TARL - row, 95 % interval (rounds resampled) | "
+             "2 s_d | only TARL / only it arrives |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for scenario, algo in [(s, a) for s in SCENARIOS for a in algos]:
         long, short = (found.get(b, {}).get((scenario, algo), {}).get(seed) for b in (budget, DEFAULT))
         ref, tarl_row = PAPER[scenario].get(algo), found.get(budget, {}).get((scenario, "tarl"), {}).get(seed)
-        pairs = outcome_pairs(tarl_row, long) if long and tarl_row and algo != "tarl" else None
-        if long or short:
-            lines.append(f"| {scenario} | {NAMES[algo]} | {' | '.join(text(long))} | {' | '.join(text(short))} | "
-                         f"{f'{ref[0]:.3f}' if ref else '-'} | " + (
-                             "-" if pairs is None else f"{sum(n for (a, b), n in pairs.items() if a == 'arrival' != b)}"
-                             f" / {sum(n for (a, b), n in pairs.items() if b == 'arrival' != a)}") + " |")
+        if not (long or short):
+            continue
+        paired_with = long and tarl_row and algo != "tarl"
+        pairs = outcome_pairs(tarl_row, long) if paired_with else None
+        rates = ("not run", "-", "-") if long is None else (
+            f"{long['success_rate']['mean']:.3f} ({long['success_rate']['std']:.3f})",
+            f"{long['collision_rate']['mean']:.3f} / {long['timeout_rate']['mean']:.3f}",
+            "-" if long["crossing_time"]["mean"] is None else f"{long['crossing_time']['mean']:.1f}")
+        lines.append(f"| {scenario} | {NAMES[algo]} | n = 1 | {' | '.join(rates)} | "
+                     f"{'-' if short is None else format(short['success_rate']['mean'], '.3f')} | "
+                     f"{f'{ref[0]:.3f}' if ref else '-'} | "
+                     f"{paired_difference(tarl_row, long) if paired_with else '-'} | "
+                     f"{band(found, scenario, algo) if algo != 'tarl' else '-'} | "
+                     + ("-" if pairs is None else f"{sum(n for (a, b), n in pairs.items() if a == 'arrival' != b)}"
+                        f" / {sum(n for (a, b), n in pairs.items() if b == 'arrival' != a)}") + " |")
+    return lines
+
+
+# The paper's claims that the claims table tests: (scenario, A, B, measure), "A does better than B" in the measure
+# (success: higher; crossing time: lower). Which way the paper orders each pair is read from PAPER; for TARL against
+# its ablations, which the paper does not run, it is the paper's thesis that learning when to act helps.
+CLAIMS = tuple((scenario, "tarl", other, "success_rate") for scenario in SCENARIOS for other in
+               ("lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo", *ABLATIONS[:2])) + tuple(
+    (scenario, "tarl", "lattice-idm", "crossing_time") for scenario in SCENARIOS)
+BAND = 2  # a difference beyond BAND x the spread of the difference is beyond the seeds' spread (about 95 %)
+
+
+def verdict(d: float, spread: float) -> str:
+    """The rule, on the difference d (positive: the paper's order) and the spread of the difference, the two rows'
+    stds over seeds at the default budget added in quadrature: beyond BAND x spread either way it holds or fails,
+    else it is within the spread."""
+    return "holds" if d > BAND * spread else "fails" if d < -BAND * spread else "within the spread"
+
+
+def combined(first: str, second: str) -> str:
+    """One verdict from the two budgets': the one that is not "within the spread", or both if they contradict."""
+    if "within the spread" in (first, second) or first == second:
+        return first if first != "within the spread" else second
+    return f"{first} at 10^5, {second} at 5 x 10^5"
+
+
+def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
+    """Each claim of CLAIMS with the data behind its verdict: the paper's two values, both rows' means over seeds at
+    the default budget and their difference, seed `seed`'s values at `budget` and their difference, the spread of the
+    difference (std over seeds at the default budget, ddof = 0, of each row, added in quadrature; it stands in for the
+    unknown spread at `budget`), each budget's verdict and the combined one. Differences are signed so that + is the
+    paper's order."""
+    out = []
+    for scenario, a, b, key in CLAIMS:
+        ref = PAPER[scenario]
+        better, column = (1, 0) if key == "success_rate" else (-1, 2)  # a shorter crossing is better
+        if b in ref:  # the paper's order: whichever of the two it has ahead
+            a, b = (a, b) if better * (ref[a][column] - ref[b][column]) >= 0 else (b, a)
+        short = [over_seeds(found[DEFAULT][(scenario, algo)], key)[0] for algo in (a, b)]
+        long = [found[budget][(scenario, algo)][seed][key]["mean"] for algo in (a, b)]
+        spread = spread_of_difference(found, scenario, a, b, key)
+        verdicts = tuple(verdict(better * (x - y), spread) for x, y in (short, long))
+        out.append({"scenario": scenario, "a": a, "b": b, "key": key, "spread": spread, "verdicts": verdicts,
+                    "paper": (ref[a][column], ref[b][column]) if b in ref else None,
+                    "default": (*short, better * (short[0] - short[1])), "long": (*long, better * (long[0] - long[1])),
+                    "verdict": combined(*verdicts)})
+    return out
+
+
+def claims_block(found: dict) -> list[str]:
+    """RESULTS.md's table of the paper's claims, one per line: the paper's two values; at each budget the difference
+    (of the seeds' means at the default budget, of seed 0's at the paper's) ± BAND x the spread of the difference,
+    the two values and that budget's verdict; and the verdict of both (`verdict`, `combined`)."""
+    lines = ["| claim | the paper | 10^5, 3 seeds | 5 x 10^5, seed 0 | verdict |", "|---|---|---|---|---|"]
+    for c in claim_rows(found):
+        word, digits = ("succeeds more often than", 3) if c["key"] == "success_rate" else ("crosses sooner than", 1)
+        width = BAND * c["spread"]
+        cell = lambda x, y, d: f"{d:+.{digits}f} ± {width:.{digits}f} ({x:.{digits}f} vs {y:.{digits}f})"  # noqa: E731
+        paper = "no such row (its thesis)" if c["paper"] is None else " vs ".join(f"{v:.{digits}f}" for v in c["paper"])
+        lines.append(f"| {c['scenario']}: {NAMES[c['a']]} {word} {NAMES[c['b']]} | {paper} | "
+                     f"{cell(*c['default'])}, {c['verdicts'][0]} | {cell(*c['long'])}, {c['verdicts'][1]} | "
+                     f"**{c['verdict']}** |")
+    return lines
+
+
+def side_block(found: dict, algos, paper: bool = False) -> list[str]:
+    """One table of both scenarios side by side at the default budget: per row its seeds (n) and per scenario its
+    success (mean +- std over seeds, in brackets the mean per-round std; n = 1: the mean and its per-round std),
+    collisions / timeouts and crossing time (means over seeds); with `paper`, Table 3's success (its +-) and crossing
+    time beside each, the best success of Table 3's rows in each scenario in bold and the ablations in italics."""
+    table = {algo: {s: found.get(DEFAULT, {}).get((s, algo)) for s in SCENARIOS} for algo in algos}
+    best = {s: max((over_seeds(t[s], "success_rate")[0] for algo, t in table.items()
+                    if t[s] and algo in TABLE_ROWS), default=None) for s in SCENARIOS}
+    lines = ["| model | seeds | " + " | ".join(f"{s}: success | collisions / timeouts | crossing [s]"
+                                                + " | paper" * paper for s in SCENARIOS) + " |",
+             "|---|---|" + ("---|---|---|" + "---|" * paper) * len(SCENARIOS)]
+    for algo, rows in table.items():
+        if not any(rows.values()):
+            continue
+        seeds = " / ".join(sorted({n_text(r) for r in rows.values() if r}))
+        cells = []
+        for scenario in SCENARIOS:
+            ref = PAPER[scenario].get(algo)
+            if not rows[scenario]:
+                cells += ["-"] * (3 + paper)
+                continue
+            stats = {k: over_seeds(rows[scenario], k) for k in (*RATES, "crossing_time")}
+            bold = "**" * (paper and algo in TABLE_ROWS and stats["success_rate"][0] == best[scenario])
+            cells += [f"{bold}{cell_text(stats['success_rate'], 3)}{bold}",
+                      " / ".join(f"{stats[k][0]:.3f}" for k in RATES[1:]),
+                      "-" if stats["crossing_time"] is None else f"{stats['crossing_time'][0]:.1f}"]
+            cells += [f"{ref[0]:.3f} ({ref[1]:.3f}), {ref[2]:.1f} s" if ref else "-"] * paper
+        name = f"*{NAMES[algo]}*" if paper and algo in ABLATIONS else NAMES[algo]
+        lines.append(f"| {name} | {seeds} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -368,33 +475,6 @@ def write_readme(found: dict, readme: Path):
     """Replace each block between `<!-- table3.py NAME -->` and `<!-- /table3.py -->` (NAME in README_ROWS) in
     `readme` and in the RESULTS.md beside it, if there is one: the headline tables live in README.md, the full ones
     and the evidence in RESULTS.md."""
-    def compact(algos) -> list[str]:
-        """Per scenario at the default budget: success, collision, timeout and crossing time as mean +- std over
-        seeds, and Table 3's success; the best success of Table 3's rows in bold."""
-        def text(stats, digits):
-            return "-" if stats is None else f"{stats[0]:.{digits}f}" + f" +- {stats[1]:.{digits}f}" * (stats[3] > 1)
-        lines = []
-        for scenario in SCENARIOS:
-            table = {algo: found.get(DEFAULT, {}).get((scenario, algo)) for algo in algos}
-            table = {algo: {k: over_seeds(rows, k) for k in (*RATES, "crossing_time")} | {"seeds": len(rows)}
-                     for algo, rows in table.items() if rows}
-            seeds = {stats["seeds"] for stats in table.values()}
-            best = max(((stats["success_rate"] or (0,))[0] for algo, stats in table.items() if algo in TABLE_ROWS),
-                       default=None)
-            lines += [f"**{scenario.capitalize()}**" + (f" ({min(seeds)} seeds)" if len(seeds) == 1 else ""), "",
-                      "| model | success | collision | timeout | crossing [s] | paper success |",
-                      "|---|---|---|---|---|---|"]
-            for algo, stats in table.items():
-                name = NAMES[algo] + (f" ({stats['seeds']} seeds)" if len(seeds) > 1 else "")
-                name = f"*{name}*" if algo in ABLATIONS else name
-                bold = "**" * (algo in TABLE_ROWS and (stats["success_rate"] or (None,))[0] == best)
-                ref = PAPER[scenario].get(algo)
-                lines.append(f"| {name} | {bold}{text(stats['success_rate'], 3)}{bold} | "
-                             f"{text(stats['collision_rate'], 3)} | {text(stats['timeout_rate'], 3)} | "
-                             f"{text(stats['crossing_time'], 1)} | {f'{ref[0]:.3f}' if ref else '-'} |")
-            lines.append("")
-        return lines[:-1]
-
     begin, end = "<!-- table3.py {} -->", "<!-- /table3.py -->"
     for path in (readme, readme.with_name("RESULTS.md")):
         if not path.exists():
@@ -404,8 +484,8 @@ def write_readme(found: dict, readme: Path):
             head, found_begin, rest = text.partition(begin.format(name))
             if not found_begin:
                 continue
-            block = (compact(algos) if kind == "compact" else budget_block(found, algos) if kind == "budget"
-                     else readme_block(found, algos, kind == "paper"))
+            block = (budget_block(found, algos) if kind == "budget" else claims_block(found) if kind == "claims"
+                     else side_block(found, algos, kind == "paper"))
             text = head + begin.format(name) + "\n" + "\n".join(block) + "\n" + end + rest.partition(end)[2]
         path.write_text(text)
 
@@ -414,8 +494,9 @@ def collect(args):
     """Rebuild results/table3.md from the eval.json files under results/runs."""
     found = load(args.results)
     lines = ["# Table 3, reproduced", "",
-             f"Each cell: mean +- std over seeds of each seed's mean over {args.rounds} rounds x {args.cases} test cases; "
-             "in brackets the mean per-round std (the paper's +-) and the number of seeds. Crossing: over a round's "
+             f"Each cell: mean +- std over the n seeds (ddof = 0) of each seed's mean over {args.rounds} rounds x "
+             f"{args.cases} test cases; in brackets the mean per-round std (the paper's +-). A row of one seed (n = 1) has "
+             "no spread over seeds: its cell is the mean and, in brackets, its per-round std. Crossing: over a round's "
              "successes (the paper's measure); crossing, timeouts at 60 s, no collisions: over the cases that did not "
              "collide (collisions are left out), a timeout counted at the 60 s limit. Paper: Table 3 "
              f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from results/runs/*/eval.json.", ""]
@@ -424,15 +505,16 @@ def collect(args):
         if budget != DEFAULT and not any(key[0] == scenario for key in found[budget]):
             continue
         title = scenario if budget == DEFAULT else f"{scenario}, at {budget_text(budget)} training steps"
-        lines += [f"## {title}", "", "| model | success | collision | timeout | crossing [s] | crossing, timeouts "
-                  "at 60 s, no collisions [s] | paper success | paper crossing [s] |", "|---|---|---|---|---|---|---|---|"]
+        lines += [f"## {title}", "", "| model | seeds | success | collision | timeout | crossing [s] | crossing, "
+                  "timeouts at 60 s, no collisions [s] | paper success | paper crossing [s] |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for algo in (*TABLE_ROWS, *ABLATIONS):
             rows = found.get(budget, {}).get((scenario, algo))
             if not rows:
                 continue
             paper = PAPER[scenario].get(algo)
             steps = {r["train_steps"] for r in rows.values()}
-            lines.append(f"| {NAMES[algo]} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | "
+            lines.append(f"| {NAMES[algo]} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | {n_text(rows)} | "
                          + " | ".join(cell_text(over_seeds(rows, k), 3) for k in RATES)
                          + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
                          + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.3f} +- {paper[3]:.3f} |" if paper else " | - | - |"))

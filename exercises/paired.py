@@ -41,7 +41,8 @@ LABELS = {"tarl": "TARL", "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": 
           "tarl-consistent": "TARL, phased real loop", "tarl-held": "TARL, held imagination",
           "tarl-utd": "TARL, 8 timing updates", "tarl-actor-target": "TARL, actor's critic in Eq. (9)",
           "tarl-rare-replay": "TARL, collision replay",
-          "tarl-min-target": "TARL, lower of both critics in Eq. (9)", "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
+          "tarl-min-target": "TARL, lower of both critics in Eq. (9)",
+          "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
           "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO"}
 HOSTS = ("tarl",)  # runs whose eval.json also holds lattice-idm and tarl-step1 (--eval-rows all)
 
@@ -121,7 +122,7 @@ def main(argv=None) -> int:
     known = table3_counts(table, args.scenario, args.b) if args.a == "tarl" and not args.budget else {}
     print(f"{args.a} (A) against {args.b} (B) on the {args.scenario}, the same test cases seed by seed")
     print(f"{'seed':<8}{'cases':>7}{'success A':>11}{'success B':>11}{'only A arrives: B coll. / t.o.':>32}"
-          f"{'only B arrives: A coll. / t.o.':>32}{'McNemar p':>12}{'A - B, 95 % bootstrap':>30}")
+          f"{'only B arrives: A coll. / t.o.':>32}{'McNemar p':>12}{'A - B, 95 % over rounds resampled':>36}")
     total, diffs, agree = np.zeros(4, int), [], []
     for seed in args.seeds:
         a, b = (find_row(args.runs, args.scenario, algo, seed, args.budget) for algo in (args.a, args.b))
@@ -141,13 +142,13 @@ def main(argv=None) -> int:
         success = [np.mean([c[k]["outcome"] == "arrival" for c in pairs]) for k in (0, 1)]
         print(f"{seed:<8}{len(pairs):>7}{success[0]:>11.3f}{success[1]:>11.3f}{f'{counts[0]} / {counts[1]}':>32}"
               f"{f'{counts[2]} / {counts[3]}':>32}{p_text(mcnemar(counts[:2].sum(), counts[2:].sum())):>12}"
-              f"{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>30}")
+              f"{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>36}")
         if seed in known:
             agree.append((seed, tuple(counts) == known[seed]))
     if len(diffs) > 1:
         mean, low, high = bootstrap(diffs, args.bootstrap, rng)
         print(f"{'pooled':<8}{'':>7}{'':>11}{'':>11}{f'{total[0]} / {total[1]}':>32}{f'{total[2]} / {total[3]}':>32}"
-              f"{p_text(mcnemar(total[:2].sum(), total[2:].sum())):>12}{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>30}")
+              f"{p_text(mcnemar(total[:2].sum(), total[2:].sum())):>12}{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>36}")
         seeds = np.array([d.mean() for d in diffs])
         print(f"over seeds: A - B = {' '.join(f'{d:+.3f}' for d in seeds)}, mean {seeds.mean():+.3f}, std {seeds.std(ddof=1):.3f}; "
               f"sign-flip test over the {len(seeds)} seeds p = {sign_flip(seeds):.2g} (the smallest possible: "
