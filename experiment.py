@@ -64,6 +64,7 @@ ROWS = {
     "tarl-rare-replay": Row("TARL, collision replay", "taker", True, variants.RareReplayTrainer),  # beyond the paper
     "tarl-min-target": Row("TARL, lower of both critics in Eq. (9)", "taker", True, variants.MinTargetTrainer,
                            timing_updates=0),  # beyond the paper (PAPER.md, 6)
+    "tarl-branch": Row("TARL, timing from branches", "taker", True, variants.BranchTrainer),  # beyond the paper
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),

@@ -89,23 +89,32 @@ class RolloutTiming(tarl.Driver):
         if len(self.cfg.candidates) > 1:
             futures = [[FUTURE_TAG, *self.case_seed, step, k] for k in range(self.cfg.futures)]
             score = {T: np.mean([self.branch(env, state, T, np.random.default_rng(f), deterministic) for f in futures])
-                     for T in self.cfg.candidates}
+                     for T in self.cfg.candidates}  # Eq. (31)'s return to the episode's end, undiscounted
             best = max(score, key=lambda T: (score[T], T == self.cfg.default_T))  # a tie keeps the default
         env.restore_state(state)
         return best
 
     def branch(self, env: DrivingEnv, state: dict, T: int, rng: np.random.Generator, deterministic: bool) -> float:
-        """The return (Eq. (31), undiscounted, to the episode's end) of T held for `hold` steps, then the default T,
-        from the saved state in the future that rng draws."""
-        obs = env.restore_state(state)
-        env.resample_future(rng)
-        ret, n, done = 0.0, 0, False
-        while not done:
-            b = float(beta(T if n < self.cfg.hold else self.cfg.default_T, omega=self.timing_cfg.omega))
-            obs, r, terminated, truncated, _ = env.step(execute(env, self.actor.act(obs, deterministic), b))
-            ret, n, done = ret + r, n + 1, terminated or truncated
-        self.counts["branch_steps"] += n
-        return ret
+        rewards = play_branch(env, self.actor, state, T, rng, self.cfg, self.timing_cfg.omega, deterministic)
+        self.counts["branch_steps"] += len(rewards)
+        return float(np.sum(rewards))
+
+
+def play_branch(env: DrivingEnv, actor, state: dict, T: int, rng: np.random.Generator, cfg: RolloutConfig,
+                omega: float, deterministic: bool = True, on_step=None) -> list[float]:
+    """The rewards (Eq. (31)) of a branch from a saved state, to the episode's end, in the future rng draws: T held
+    for cfg.hold steps (Eqs. (11)-(12), a fresh a_t each step), then cfg.default_T. on_step() after each step."""
+    obs = env.restore_state(state)
+    env.resample_future(rng)
+    rewards, done = [], False
+    while not done:
+        b = float(beta(T if len(rewards) < cfg.hold else cfg.default_T, omega=omega))
+        obs, r, terminated, truncated, _ = env.step(execute(env, actor.act(obs, deterministic), b))
+        rewards.append(r)
+        done = terminated or truncated
+        if on_step is not None:
+            on_step()
+    return rewards
 
 
 def parse(spec: str) -> RolloutConfig | None:

@@ -1,5 +1,7 @@
 """The variants beyond the paper that give the timing taker the signal it lacks (variants.py, PAPER.md, 6): each
 mechanism checked by hand on a D_T filled here, and a short real run of each that updates and reloads."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -116,3 +118,33 @@ def test_short_runs_of_the_signal_variants_update_count_their_steps_and_reload(a
     x = np.random.default_rng(0).uniform(0, 1, (4, OBS_DIM + 1)).astype(np.float32)
     np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
     assert isinstance(trainer, (variants.ActorTargetTrainer, variants.RareReplayTrainer))
+
+
+def test_a_short_run_of_tarl_branch_learns_from_measured_branches_counts_their_steps_and_reloads(env, tmp_path,
+                                                                                                monkeypatch):
+    monkeypatch.setattr(variants.BranchTrainer, "BRANCH_SHARE", 1.0)  # branch wherever T can matter
+    monkeypatch.setattr(variants.BranchTrainer, "LEARNING_STARTS", 3)
+    small = dataclasses.replace(SMALL, steps=2500)  # a branch can run for the whole 60 s of an episode
+    trainer = experiment.make_trainer("tarl-branch", env, small, seed=1, out=tmp_path,
+                                      state=dict(config=dict(sac=vars(SMALL_SAC))), **QUIET)
+    steps, branches = [0], []
+    step, play = env.step, variants.rollout_timing.play_branch
+    monkeypatch.setattr(env, "step", lambda a: steps.__setitem__(0, steps[0] + 1) or step(a))
+    monkeypatch.setattr(variants.rollout_timing, "play_branch", lambda *a, **k: branches.append(play(*a, **k)) or
+                        branches[-1])
+    trainer.run()
+    assert steps[0] == trainer.step >= small.steps  # every simulator step, of the branches too, counts
+    n = len(trainer.D_T)
+    assert n == len(branches) >= 2 * variants.BranchTrainer.CANDIDATES and n % variants.BranchTrainer.CANDIDATES == 0
+    data = {k: v[:n] for k, v in trainer.D_T.data.items()}
+    # Eq. (9)'s target is the measured return: G of Eq. (8) over the whole branch, no bootstrap
+    np.testing.assert_allclose(data["rew"], [tarl.discounted_sum(r, SMALL_SAC.gamma) for r in branches], rtol=1e-6)
+    assert (data["discount"] == 0).all() and (data["done"] == 1).all() and set(data["act"]) <= set(range(1, 11))
+    assert trainer.updates["timing"] == variants.BranchTrainer.UPDATES * (n - 3 + 1) and trainer.updates["actor"] > 50
+    state = experiment.load_checkpoint(tmp_path / "ckpt.pt", "intersection", "tarl-branch")
+    fresh = experiment.make_trainer("tarl-branch", env, small, seed=2, state=state, **QUIET)
+    fresh.load(state, resume=True)
+    assert isinstance(fresh, variants.BranchTrainer) and len(fresh.D_T) == n
+    x = np.random.default_rng(0).uniform(0, 1, (4, OBS_DIM + 1)).astype(np.float32)
+    np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
+

@@ -9,12 +9,18 @@ learns; how it acts (Eqs. (5), (11)-(12)) is the paper's.
     tarl-actor-target   ActorTargetTrainer: Eq. (9)'s bootstrap from the actor's critic, an update every step
     tarl-rare-replay    RareReplayTrainer: a quarter of every timing batch drawn from D_T's collisions
     tarl-min-target     MinTargetTrainer: Eq. (9)'s bootstrap from the lower of both critics, an update every step
+    tarl-branch         BranchTrainer: Q(s, a, T) learned from measured branches of the real world, in place of the
+                        timing imagination (rollout_timing.py measures what such a timing can reach)
 """
 from __future__ import annotations
+
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import torch
 
+import rollout_timing
 import tarl
 from tarl import OBS_DIM
 
@@ -95,3 +101,60 @@ class MinTargetTrainer(ActorTargetTrainer):
         own = tarl.td_target(self.timing_taker, batch)  # r_T + gamma^T (1 - delta) V_T(s_t+T)
         # gamma^T (1 - delta) >= 0, so the lower target is the one with the lower V
         return torch.minimum(own, super().target(batch))  # ... V_a(s_t+T)
+
+
+class BranchTrainer(tarl.Trainer):
+    """TARL whose timing taker learns what each T leads to in the real world, measured by branching the world,
+    in place of the timing imagination (Algorithm 1 lines 4-15); how it acts is the paper's (Eqs. (11)-(12)).
+
+    The rollout timing (rollout_timing.py) finds that choosing T by simulating it from the state does better than
+    any fixed or random T (RESULTS.md). This loop teaches the timing taker from the same branches. It drives the
+    real loop with TARL's learned timing for N_T steps, then to the episode's end. At a step where T can matter
+    (the actor's and the planner's accelerations differ by at least RolloutConfig.gap), with probability
+    BRANCH_SHARE, the world is saved and CANDIDATES timings T drawn from 1..T_max are each played from it: held
+    for RolloutConfig.hold steps, then T = 2 to the episode's end, each in a future of its own (the humans' game
+    weights and the departures drawn anew). D_T stores ((s_t, a_t), T, G) with G the branch's discounted return
+    of Eq. (8) to its end, and discount 0: Eq. (9)'s target becomes the measured G, a Monte Carlo target. Every
+    branch step counts toward the budget, as the imagination's do. Nothing of the main line enters D_a.
+    """
+
+    BRANCH_SHARE = 0.2  # [-] of the steps where T can matter that are branched: ~1 in 7 steps of the loop
+    CANDIDATES = 3  # timings T branched per decision, drawn without replacement from 1..T_max
+    UPDATES = 8  # timing-taker updates per branch stored: D_T holds ~500 branches at the default budget
+    LEARNING_STARTS = 100  # branches in D_T before the timing taker learns (D_T fills ~10 x slower than TARL's)
+
+    def imagination_loop(self):
+        n, done, env, cfg = 0, False, self.env, rollout_timing.RolloutConfig()
+        if not hasattr(self, "_folder"):
+            self._folder = tempfile.TemporaryDirectory(prefix="tarl-branch-")
+        while n < self.tc.n_timing or not done:
+            s = self.obs
+            a, T, b = self.driver.act(s, env)  # TARL's, sampling T (Alg. 1 lines 17-18)
+            branch = self.step < self.tc.steps and self.rng.random() < self.BRANCH_SHARE  # within the budget
+            if branch and abs(float(a[0]) - env.base_action()) >= cfg.gap:
+                x, state = tarl.timing_input(s, a, env.cfg), env.save_state(Path(self._folder.name) / "state.xml")
+                for T_b in self.rng.choice(np.arange(1, self.tc.timing.t_max + 1), self.CANDIDATES, replace=False):
+                    future = np.random.default_rng(self.rng.integers(2**63))  # its own: not the main line's
+                    rewards = rollout_timing.play_branch(env, self.actor, state, int(T_b), future, cfg,
+                                                         self.tc.timing.omega, deterministic=False, on_step=self.branch_step)
+                    G = tarl.discounted_sum(rewards, self.sac_cfg.gamma)  # Eq. (8) over the whole branch
+                    self.D_T.add(x, int(T_b), G, np.zeros(OBS_DIM + 1, np.float32), 0.0, True)
+                    for _ in range(self.UPDATES):
+                        self.learn(self.timing_taker, self.timing_batch, len(self.D_T) >= self.LEARNING_STARTS, "timing")
+                env.restore_state(state)  # the main line goes on with its own future
+            s2, r, terminated, truncated, info = env.step(tarl.execute(env, a, b))
+            done = terminated or truncated
+            self.obs = env.reset()[0] if done else s2
+            self.after_step(r, b, info, done, "imagination")
+            n += 1
+
+    def branch_step(self):
+        """A simulator step of a branch: it counts toward the budget, the progress lines and the checkpoints, not
+        toward an episode of train_log.csv."""
+        self.step += 1
+        if self.step % self.tc.log_every == 0:
+            self.log.progress(self.step, "timing branches", f" | updates actor {self.updates['actor']}, timing "
+                              f"{self.updates['timing']}, D_T {len(self.D_T)}")
+        if self.step % self.tc.checkpoint_every == 0:
+            self.save()
+

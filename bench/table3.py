@@ -48,7 +48,7 @@ RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
 # two variants whose T means the same in both loops, one whose timing taker updates more, and three that give it the
 # signal it lacks (variants.py) (PAPER.md, 6; not in the README's headline)
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t", "tarl-consistent", "tarl-held", "tarl-utd", "tarl-actor-target",
-             "tarl-rare-replay", "tarl-min-target")
+             "tarl-rare-replay", "tarl-min-target", "tarl-branch")
 NAMES = {algo: row.label for algo, row in experiment.ROWS.items()} | {"tarl-step1": "TARL step 1"}
 # Table 3 of the paper: success rate and crossing time [s], mean +- std over 10 rounds of 200 cases
 PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.739, 0.039, 10.303, 0.515),

@@ -41,7 +41,7 @@ LABELS = {"tarl": "TARL", "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": 
           "tarl-consistent": "TARL, phased real loop", "tarl-held": "TARL, held imagination",
           "tarl-utd": "TARL, 8 timing updates", "tarl-actor-target": "TARL, actor's critic in Eq. (9)",
           "tarl-rare-replay": "TARL, collision replay",
-          "tarl-min-target": "TARL, lower of both critics in Eq. (9)",
+          "tarl-min-target": "TARL, lower of both critics in Eq. (9)", "tarl-branch": "TARL, timing from branches",
           "sac": "SAC", "sac-lattice": "SAC-Lattice", "lattice-idm": "Lattice-IDM",
           "sac-lag": "SAC-Lag", "sac-pid": "SAC-PID", "ppo-lag": "PPO-Lag", "cpo": "CPO"}
 HOSTS = ("tarl",)  # runs whose eval.json also holds lattice-idm and tarl-step1 (--eval-rows all)
