@@ -9,6 +9,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import speed  # noqa: E402
@@ -317,3 +318,47 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_the_rule()
         verdicts = {rule(d_short), rule(d_long)} - {"within the spread"}
         expected = verdicts.pop() if len(verdicts) == 1 else "within the spread" if not verdicts else None
         assert cells[4] == f"**{expected or f'{rule(d_short)} at 10^5, {rule(d_long)} at 5 x 10^5'}**", line
+
+
+def _outside(tmp_path, name, cases=None, odd_start=False):
+    """A committed eval.json (SAC's, roundabout, seed 0) as an outside policy's (bench/own_agent.py's layout): its row
+    renamed, marked outside the paper, with its first `cases` cases or its first case's start changed."""
+    data = json.loads((Path(__file__).resolve().parent / "results" / "runs" / "roundabout-sac-s0" / "eval.json").read_text())
+    row = data["rows"][0]
+    row.update(algo=name, label=name, policy={"source": "test", "key": "k", "outside_the_paper": True})
+    row["cases"] = row["cases"][:cases]
+    if odd_start:
+        row["cases"][0]["start"] = "0" * 16
+    (path := tmp_path / f"{name}.json").write_text(json.dumps(data))
+    return path
+
+
+def test_table3_lists_an_outside_row_after_the_committed_ones_which_stay_as_they_are(tmp_path, capsys):
+    results = Path(__file__).resolve().parent / "results"
+    committed = (results / "table3.md").read_text()
+    args = table3.argparse.Namespace(results=results, rounds=10, cases=200, readme=False)
+    base = table3.collect(args, out=tmp_path / "base.md").splitlines()
+    table3.main(["--collect-only", "--extra", str(_outside(tmp_path, "my-agent"))])
+    text = capsys.readouterr().out.splitlines()
+    assert (results / "table3.md").read_text() == committed  # --extra writes no committed file
+    mine = next(i for i, line in enumerate(text) if line.startswith("| my-agent (outside the paper) (100,154 steps) |"))
+    assert text[mine].endswith(" | - | - |") and text[mine + 1] == ""  # no paper values; after every committed row
+    assert text[:mine].count("## roundabout") == 1 and "## roundabout" not in text[mine:]
+    assert any(line.startswith("| 100,000 | roundabout | my-agent (outside the paper) |") for line in text)
+    same = "- roundabout, seed 0: "
+    assert [line for line in base if line not in text] == [line for line in base if line.startswith(same)]
+    assert all("outside the paper" in line.lower() or line.startswith(same) for line in text if line not in base)
+    assert next(line for line in text if line.startswith(same)).endswith("cases; every row met the same cases")
+    with pytest.raises(SystemExit):  # never into the committed table
+        table3.main(["--collect-only", "--extra", str(tmp_path / "my-agent.json"), "--out", str(results / "table3.md")])
+
+
+def test_table3_reports_an_outside_row_that_met_other_cases_in_one_line(tmp_path):
+    results = Path(__file__).resolve().parent / "results"
+    args = table3.argparse.Namespace(results=results, rounds=10, cases=200, readme=False)
+    extra = [_outside(tmp_path, "short", cases=200), _outside(tmp_path, "odd", odd_start=True)]
+    text = table3.collect(args, extra, out=tmp_path / "table3.md")
+    (line,) = [line for line in text.splitlines() if line.startswith("- roundabout, seed 0: ")]
+    assert "2000 cases; cases that began differently: odd (outside the paper) 1" in line
+    assert line.endswith("; not compared, another number of cases: short (outside the paper) (200 cases)")
+    assert "| short (outside the paper) (100,154 steps) | n = 1 |" in text

@@ -3,6 +3,7 @@
     python bench/own_agent.py --scenario roundabout --sb3 runs/sb3-sac.zip           # a Stable-Baselines3 model file
     python bench/own_agent.py --scenario intersection --policy mypackage.agent:act   # a function of a module
     python -m exercises.paired --scenario roundabout sb3-sac tarl --seeds 0 --runs runs results/runs   # then, again
+    python bench/table3.py --collect-only --extra runs/roundabout-sb3-sac-s0/eval.json   # a row of Table 3's tables
 
 A policy gives the ego's acceleration [m/s^2] (one number; the world clips it to [a_min, a_max] as for every row)
 from the observation (67 numbers, Eqs. (27)-(30)), deterministically: a Stable-Baselines3 model or model file

@@ -4,6 +4,7 @@
     python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
     python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
     python bench/table3.py --collect-only --readme   # and the tables in README.md and RESULTS.md
+    python bench/table3.py --collect-only --extra runs/roundabout-sb3-sac-s0/eval.json   # your own agent's rows too
 
 A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
 checkpoints), evaluated on the fixed test cases of seed K; TARL's cell is the default command, which
@@ -17,6 +18,10 @@ seeds (n) beside every row; a row of one seed shows its mean and per-round std, 
 --readme it also writes RESULTS.md's table of the paper's claims, each with a verdict by the rule of
 `verdict` (RESULTS.md, "How the numbers were made"), and the paired differences at the paper's budget
 with a 95 % interval over the rounds resampled.
+--extra reads eval.json files of policies outside the paper (bench/own_agent.py's) as cells at the default budget, of
+their file's scenario and seed: each row is listed after Table 3's rows and the ablations as "LABEL (outside the
+paper)", with "-" in the paper's columns. Those tables are the user's, not the committed results: they go to stdout and
+to --out FILE if given, never to results/table3.md, and --readme does not go with --extra.
 """
 import argparse
 import fcntl
@@ -50,6 +55,15 @@ RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t", "tarl-consistent", "tarl-held", "tarl-utd", "tarl-actor-target",
              "tarl-rare-replay", "tarl-min-target", "tarl-branch")
 NAMES = {algo: row.label for algo, row in experiment.ROWS.items()} | {"tarl-step1": "TARL step 1"}
+
+
+def row_name(algo: str, rows: dict | None = None) -> str:
+    """A row's name in the tables: NAMES', or for any other row (an outside policy's, --extra) its eval.json label
+    (of its first seed in `rows`, {seed: row}) or algo, marked "(outside the paper)"."""
+    label = next(iter((rows or {}).values()), {}).get("label") or algo
+    return NAMES.get(algo) or f"{label} (outside the paper)"
+
+
 # Table 3 of the paper: success rate and crossing time [s], mean +- std over 10 rounds of 200 cases
 PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.739, 0.039, 10.303, 0.515),
                           "sac-lag": (0.828, 0.026, 9.230, 0.134), "sac-pid": (0.810, 0.028, 9.208, 0.133),
@@ -219,16 +233,39 @@ def wall_times(results: Path) -> list[str]:
     return lines
 
 
-def load(results: Path) -> dict:
+def load(results: Path, extra=()) -> dict:
     """budget -> (scenario, algo) -> {seed: the row of eval.json}; the budget, (steps, step 1), is the cell's
-    (its name)."""
+    (its name). `extra`: eval.json files of outside policies (--extra), cells at the default budget whose rows must
+    not be Table 3's or an ablation's (NAMES) nor repeat another's row of the same scenario and seed."""
     found = {}
     for path in sorted((results / "runs").glob("*/eval.json")):
         data, suffix = json.loads(path.read_text()), re.search(r"-(\d+)k(?:-step1-(\d+)k)?$", path.parent.name)
         budget = (int(suffix[1]) * 1000, suffix[2] and int(suffix[2]) * 1000) if suffix else DEFAULT
         for row in data["rows"]:
             found.setdefault(budget, {}).setdefault((data["scenario"], row["algo"]), {})[data["seed"]] = row
+    for path in map(Path, extra):
+        try:
+            data = json.loads(path.read_text())
+            rows, scenario, seed = data["rows"], data["scenario"], data["seed"]
+        except OSError as e:
+            raise SystemExit(f"--extra {path}: {e.strerror}") from None
+        except (ValueError, KeyError, TypeError):
+            raise SystemExit(f"--extra {path}: not an eval.json (its rows, scenario and seed)") from None
+        for row in rows:
+            seeds = found.setdefault(DEFAULT, {}).setdefault((scenario, row["algo"]), {})
+            if row["algo"] in NAMES or seed in seeds:
+                raise SystemExit(f"--extra {path}: its row {row['algo']!r} of seed {seed} on the {scenario} is "
+                                 + ("one of Table 3's or the ablations'" if row["algo"] in NAMES else "already read")
+                                 + "; an outside row needs its own name")
+            seeds[seed] = row
     return found
+
+
+def listed(cells: dict, scenario: str) -> list[str]:
+    """The rows of one budget's `cells` that the tables list, in order: Table 3's, the ablations, then any other
+    (an outside policy's, --extra) in the order read."""
+    return [*TABLE_ROWS, *ABLATIONS, *(algo for s, algo in cells if s == scenario and algo not in (*TABLE_ROWS,
+                                                                                                  *ABLATIONS))]
 
 
 def over_seeds(rows: dict, key: str):
@@ -253,20 +290,25 @@ def n_text(rows: dict) -> str:
 
 def same_cases(found: dict) -> list[str]:
     """Per budget, scenario and seed: did every row meet the same test cases? A case's start fingerprint
-    (eval.json) against the one most rows had for it."""
+    (eval.json) against the one most rows had for it, among the rows with the number of cases most rows had (the
+    first read on a tie); a row with another number is named as not compared."""
     starts = {}
     for budget, cells in found.items():
         for (scenario, algo), seeds in cells.items():
             for seed, row in seeds.items():
-                starts.setdefault((budget, scenario, seed), {})[algo] = [case["start"] for case in row["cases"]]
+                starts.setdefault((budget, scenario, seed), {})[algo] = ([case["start"] for case in row["cases"]],
+                                                                         row_name(algo, {seed: row}))
     lines = []
     for (budget, scenario, seed), rows in sorted(starts.items()):
-        common = [Counter(case).most_common(1)[0][0] for case in zip(*rows.values())]
-        odd = {algo: sum(a != b for a, b in zip(s, common)) for algo, s in rows.items()}
-        odd = ", ".join(f"{NAMES[algo]} {n}" for algo, n in odd.items() if n)
+        size = Counter(len(s) for s, _ in rows.values()).most_common(1)[0][0]
+        other = ", ".join(f"{label} ({len(s)} cases)" for s, label in rows.values() if len(s) != size)
+        rows = {algo: (s, label) for algo, (s, label) in rows.items() if len(s) == size}
+        common = [Counter(case).most_common(1)[0][0] for case in zip(*(s for s, _ in rows.values()))]
+        odd = ", ".join(f"{label} {n}" for s, label in rows.values() if (n := sum(a != b for a, b in zip(s, common))))
         lines.append(f"- {scenario}, seed {seed}" + (f", {budget_text(budget)} steps" if budget != DEFAULT else "") +
                      f": {len(rows)} rows, {len(common)} cases; " + (f"cases that began differently: {odd}" if odd
-                                                                      else "every row met the same cases"))
+                                                                      else "every row met the same cases")
+                     + (f"; not compared, another number of cases: {other}" if other else ""))
     return lines
 
 
@@ -314,10 +356,10 @@ def each_seed(found: dict) -> list[str]:
         seeds = sorted({seed for rows in found[budget].values() for seed in rows})
         lines += ["| budget | scenario | model | " + " | ".join(f"seed {s}" for s in seeds) + " |",
                   "|---|---|---|" + "---|" * len(seeds)]
-        for scenario, algo in [(s, a) for s in SCENARIOS for a in (*TABLE_ROWS, *ABLATIONS)]:
+        for scenario, algo in [(s, a) for s in SCENARIOS for a in listed(found[budget], s)]:
             rows = found[budget].get((scenario, algo), {})
             if rows:
-                lines.append(f"| {budget_text(budget)} | {scenario} | {NAMES[algo]} | " + " | ".join(
+                lines.append(f"| {budget_text(budget)} | {scenario} | {row_name(algo, rows)} | " + " | ".join(
                     "-" if s not in rows else "{:.3f} ({:.3f} / {:.3f}), {:.1f} s".format(
                         *(rows[s][k]["mean"] for k in RATES),
                         rows[s]["crossing_time"]["mean"] or float("nan")) for s in seeds) + " |")
@@ -490,9 +532,14 @@ def write_readme(found: dict, readme: Path):
         path.write_text(text)
 
 
-def collect(args):
-    """Rebuild results/table3.md from the eval.json files under results/runs."""
-    found = load(args.results)
+def collect(args, extra=(), out: Path | None = None) -> str:
+    """Rebuild results/table3.md from the eval.json files under results/runs (or write `out` instead) and return its
+    text. With `extra`, eval.json files of outside policies (--extra), their rows join the tables and the text goes to
+    `out` alone, if given: never to results/table3.md, the committed results."""
+    committed = args.results / "table3.md"
+    if extra and out is not None and out.resolve() == committed.resolve():
+        raise SystemExit(f"--out {out}: the committed results, which rows outside the paper (--extra) never enter")
+    found = load(args.results, extra)
     lines = ["# Table 3, reproduced", "",
              f"Each cell: mean +- std over the n seeds (ddof = 0) of each seed's mean over {args.rounds} rounds x "
              f"{args.cases} test cases; in brackets the mean per-round std (the paper's +-). A row of one seed (n = 1) has "
@@ -500,6 +547,7 @@ def collect(args):
              "successes (the paper's measure); crossing, timeouts at 60 s, no collisions: over the cases that did not "
              "collide (collisions are left out), a timeout counted at the 60 s limit. Paper: Table 3 "
              f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from results/runs/*/eval.json.", ""]
+    lines += [f"Outside the paper (--extra, not committed results): {', '.join(map(str, extra))}.", ""] * bool(extra)
     for budget, scenario in [(DEFAULT, s) for s in SCENARIOS] + [(b, s) for b in by_budget(found) if b != DEFAULT
                                                                   for s in SCENARIOS]:
         if budget != DEFAULT and not any(key[0] == scenario for key in found[budget]):
@@ -508,13 +556,14 @@ def collect(args):
         lines += [f"## {title}", "", "| model | seeds | success | collision | timeout | crossing [s] | crossing, "
                   "timeouts at 60 s, no collisions [s] | paper success | paper crossing [s] |",
                   "|---|---|---|---|---|---|---|---|---|"]
-        for algo in (*TABLE_ROWS, *ABLATIONS):
+        for algo in listed(found.get(budget, {}), scenario):
             rows = found.get(budget, {}).get((scenario, algo))
             if not rows:
                 continue
             paper = PAPER[scenario].get(algo)
             steps = {r["train_steps"] for r in rows.values()}
-            lines.append(f"| {NAMES[algo]} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | {n_text(rows)} | "
+            lines.append(f"| {row_name(algo, rows)} ({'untrained' if steps == {0} else f'{min(steps):,} steps'}) | "
+                         f"{n_text(rows)} | "
                          + " | ".join(cell_text(over_seeds(rows, k), 3) for k in RATES)
                          + " | " + " | ".join(cell_text(over_seeds(rows, k), 2) for k in ("crossing_time", "crossing_time_all"))
                          + (f" | {paper[0]:.3f} +- {paper[1]:.3f} | {paper[2]:.3f} +- {paper[3]:.3f} |" if paper else " | - | - |"))
@@ -530,10 +579,12 @@ def collect(args):
               "stamps have none): training and evaluation, summed over the stretches a cell ran in, and for each stretch "
               "the cells that ran beside it at any time (a stretch stamped before 2026-12-03 22:00 UTC names only those "
               "beside it when it started) and the load when it started.", "", *wall_times(args.results), ""]
-    (args.results / "table3.md").write_text("\n".join(lines))
+    text = "\n".join(lines)
+    if out is not None or not extra:
+        (out or committed).write_text(text)
     if args.readme:
         write_readme(found, ROOT / "README.md")
-    return found
+    return text
 
 
 def main(argv=None):
@@ -555,7 +606,13 @@ def main(argv=None):
     p.add_argument("--commit", action="store_true", help="git commit each finished cell's results")
     p.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell (2 threads "
                    "each unless --threads) and exit")
-    p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md")
+    p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md and print it")
+    p.add_argument("--extra", type=Path, nargs="+", default=[], metavar="PATH", help="with --collect-only: eval.json "
+                   "files of policies outside the paper (bench/own_agent.py's), each row listed after Table 3's rows "
+                   "and the ablations as 'LABEL (outside the paper)'; the tables are then printed (and written to "
+                   "--out FILE if given), never to results/table3.md")
+    p.add_argument("--out", type=Path, metavar="FILE", help="with --collect-only: write the tables here instead "
+                   "(default: results/table3.md, or no file with --extra)")
     p.add_argument("--readme", action="store_true", help="also rewrite the result tables of README.md (the headline) "
                    "and RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
     args = p.parse_args(argv)
@@ -567,9 +624,12 @@ def main(argv=None):
         p.error("--step-one must be above 0 and below --steps")
     if args.step_one is not None and (plain := [a for a in args.algos if not experiment.ROWS[a].step_one]):
         p.error(f"--step-one: {', '.join(plain)} have no step 1")
+    if (args.extra or args.out) and not args.collect_only:
+        p.error("--extra and --out go with --collect-only")
+    if args.extra and args.readme:
+        p.error("--readme writes the committed results' tables, which rows outside the paper (--extra) never enter")
     if args.collect_only:
-        collect(args)
-        return print((args.results / "table3.md").read_text())
+        return print(collect(args, args.extra, args.out))
     todo = [c for c in cells(args.algos, args.seeds, args.scenarios)
             if not (args.results / "runs" / cell_name(*c, args.steps, args.step_one) / "eval.json").exists()]
     if args.print_commands:
