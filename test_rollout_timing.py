@@ -1,4 +1,4 @@
-"""Branching in the world (DrivingEnv.save_state / restore_state / resample_future) and the rollout timing
+"""Branching the world (rollout_timing.save_state / restore_state / resample_future) and the rollout timing
 (rollout_timing.py), on the real simulator."""
 import subprocess
 import sys
@@ -11,7 +11,7 @@ import pytest
 import experiment
 import rollout_timing
 import world
-from rollout_timing import RolloutConfig, RolloutTiming
+from rollout_timing import RolloutConfig, RolloutTiming, resample_future, restore_state, save_state
 
 HERE = Path(__file__).resolve().parent
 
@@ -52,15 +52,15 @@ def test_a_restored_state_replays_the_recorded_steps_exactly(cases):
         env.reset(options={"case": case})
         for _ in range(20):
             obs = env.step([env.base_action()])[0]
-        state = env.save_state(folder / "state.xml")
+        state = save_state(env, folder / "state.xml")
         rng = np.random.default_rng(1)
         actions = np.clip(env.base_action() + rng.normal(0.0, 1.5, 400), -3.0, 2.0)
-        assert np.array_equal(env.restore_state(state), obs)  # the observation as it was saved
+        assert np.array_equal(restore_state(env, state), obs)  # the observation as it was saved
         first = play(env, actions)
         assert first[-1][2], "the episode ran to its end"
         env.reset(options={"case": recorded[-1]})  # something else in between: a restore forgets it
         play(env, [0.0] * 30)
-        assert np.array_equal(env.restore_state(state), obs)
+        assert np.array_equal(restore_state(env, state), obs)
         again = play(env, actions)
         assert len(again) == len(first)
         for (o1, r1, d1, i1), (o2, r2, d2, i2) in zip(first, again):
@@ -72,7 +72,7 @@ def test_a_state_is_saved_only_in_an_episode(cases):
     env.reset(options={"case": recorded[0]})
     play(env, [2.0] * 400)
     with pytest.raises(RuntimeError, match="episode under way"):
-        env.save_state(folder / "state.xml")
+        save_state(env, folder / "state.xml")
 
 
 def test_a_resampled_future_keeps_what_the_ego_sees_and_draws_the_rest_anew(cases):
@@ -80,15 +80,15 @@ def test_a_resampled_future_keeps_what_the_ego_sees_and_draws_the_rest_anew(case
     env.reset(options={"case": recorded[1]})
     for _ in range(10):
         env.step([env.base_action()])
-    state = env.save_state(folder / "state.xml")
+    state = save_state(env, folder / "state.xml")
     own = [env.rng.random() for _ in range(3)]  # what the case's own stream would draw next
-    env.restore_state(state)
+    restore_state(env, state)
     humans = {h: p.copy() for h, p in env.humans.items()}
-    env.resample_future(np.random.default_rng([rollout_timing.FUTURE_TAG, 0, 1, 10, 0]))
+    resample_future(env, np.random.default_rng([rollout_timing.FUTURE_TAG, 0, 1, 10, 0]))
     assert [env.rng.random() for _ in range(3)] != own
     for h, p in env.humans.items():  # game weights and SVO drawn anew, kinematics kept
         assert not np.allclose(p[:5], humans[h][:5]) and np.array_equal(p[5:], humans[h][5:])
-    env.restore_state(state)
+    restore_state(env, state)
     assert [env.rng.random() for _ in range(3)] == own  # a restore brings the case's own future back
 
 
@@ -97,17 +97,17 @@ def test_the_rollout_timing_branches_from_other_seeds_and_counts_every_branch_st
     cfg = RolloutConfig(candidates=(1, 10), futures=2, hold=5)
     driver = RolloutTiming(Toward(), cfg=cfg)
     seen, steps = [], [0]
-    resample, step = env.resample_future, env.step
+    resample, step = rollout_timing.resample_future, env.step
 
-    def spy_resample(rng):  # the branch's stream, and the case's own at the same point
-        seen.append((repr(rng.bit_generator.state), repr(env.rng.bit_generator.state)))
-        return resample(rng)
+    def spy_resample(env_, rng):  # the branch's stream, and the case's own at the same point
+        seen.append((repr(rng.bit_generator.state), repr(env_.rng.bit_generator.state)))
+        return resample(env_, rng)
 
     def count_step(a):
         steps[0] += 1
         return step(a)
 
-    monkeypatch.setattr(env, "resample_future", spy_resample)
+    monkeypatch.setattr(rollout_timing, "resample_future", spy_resample)
     monkeypatch.setattr(env, "step", count_step)
     case = recorded[2]
     ep = experiment.rollout(env, driver, {"case": case})

@@ -13,7 +13,6 @@ cited as "PAPER.md, note n").
     Eqs. (24)-(26) level-k game   game_utility, outcome_terms, level_k_decisions, DrivingEnv._play_level_k
     Eqs. (27)-(30) observation    SECTORS, sector_index, observe;  Eq. (31): reward
     Sec. 5.3 test cases           DrivingEnv.record_cases, reset(options={"case": ...}), fingerprint
-    Branching (beyond the paper)  DrivingEnv.save_state, restore_state, resample_future
     Eqs. (18)-(23) base action    DrivingEnv.plan, base_action (planner.py)
     Watching it                   DrivingEnv.render (scene.py draws), snapshot, show; make (gymnasium.make)
 """
@@ -29,7 +28,7 @@ import numpy as np
 from gymnasium import spaces
 
 import planner
-from scenarios import check_network, scenario_files, sumo_home  # noqa: F401 (world.X for experiment.py)
+from scenarios import check_network, follow, scenario_files, sumo_home  # noqa: F401 (world.X for experiment.py)
 
 HERE = Path(__file__).resolve().parent
 EGO = "ego"
@@ -573,7 +572,7 @@ class DrivingEnv(gymnasium.Env):
         for rid in self.routes:
             edges = sim.route.getEdges(rid)
             for idx in range(sim.edge.getLaneNumber(edges[0])):
-                lanes = self._follow(edges, f"{edges[0]}_{idx}")
+                lanes = follow(sim.lane, edges, f"{edges[0]}_{idx}")
                 if lanes is None:
                     continue
                 shapes = [np.asarray(sim.lane.getShape(lane), dtype=float) for lane in lanes]
@@ -590,21 +589,6 @@ class DrivingEnv(gymnasium.Env):
         if not tasks:
             raise SystemExit(f"{self.route_file.name}: no route the ego can drive; rebuild the scenarios")
         return tasks
-
-    def _follow(self, edges, lane):
-        """The lanes (internal ones included) a vehicle on `lane` takes along `edges`, or None."""
-        lanes = [lane]
-        for nxt in edges[1:]:
-            links = [link for link in self.sim.lane.getLinks(lanes[-1]) if link[0].rsplit("_", 1)[0] == nxt]
-            if not links:
-                return None
-            via = links[0][4]
-            while via:  # an internal lane, possibly split at an internal junction
-                lanes.append(via)
-                inner = self.sim.lane.getLinks(via)
-                via = inner[0][4] if inner and inner[0][4] and inner[0][4] not in lanes else ""
-            lanes.append(links[0][0])
-        return lanes
 
     def _task_index(self, edges, lanes) -> int:
         """h1 of Eq. (29): straight/left/right at the intersection, exit 1/2/3 at the roundabout."""
@@ -641,15 +625,12 @@ class DrivingEnv(gymnasium.Env):
         return cases
 
     def _load(self, file: str, seed: int):
-        # loadState keeps something of the run before it (SUMO 1.28, PAPER.md): a lane that held vehicles
-        # can keep the one then inserted on it from moving, and after an episode that had played the case's
-        # first step a waiting human entered a step late. A new simulation (~10 ms) before each load makes
-        # a state continue the same whatever ran before.
+        """A saved state (a test case, or rollout_timing.save_state's) in a new simulation (~10 ms): loadState keeps
+        something of the run before it (SUMO 1.28, PAPER.md), a new simulation makes it continue the same."""
         self._start(seed, warmup=False)
         self.sim.simulation.loadState(file)
         for h in self.sim.vehicle.getIDList():
-            if h != EGO:
-                self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it
+            self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it (the ego's too: 0 as well)
 
     def _load_case(self, case: dict):
         self._load(case["file"], case["seed"][0])
@@ -665,50 +646,6 @@ class DrivingEnv(gymnasium.Env):
                           for v in self.sim.vehicle.getIDList())
         state = (vehicles, self.task["route"], self.next_spawn, self.rng.bit_generator.state)
         return hashlib.sha1(repr(state).encode()).hexdigest()[:16]
-
-    # ---- Branching: the whole state saved, restored, and its future drawn anew ---------------------
-    # What SUMO's file does not hold, and what _read saw: right after a load, before a step, libsumo's context
-    # subscription still returns vehicles of the simulation before it (SUMO 1.28), so the state is not read anew
-    OWN_STATE = ("humans", "n_humans", "decisions", "capped", "t_start", "next_spawn", "task", "t_spawn", "accel",
-                 "waited", "_headings", "shown", "jam_removals", "v", "heading", "xy", "s", "others", "obs")
-
-    def save_state(self, file) -> dict:
-        """The whole state between two steps of an episode, for restore_state: SUMO's (saveState to `file`, every
-        digit and its rng) and the env's own (OWN_STATE, the traffic's rng)."""
-        if not self.ego_alive:
-            raise RuntimeError("save_state() saves an episode under way: call it between reset() and its end")
-        self.sim.simulation.saveState(str(file))
-        own = {k: dict(v) if isinstance(v, dict) and k != "task" else v for k, v in vars(self).items() if k in self.OWN_STATE}
-        return dict(file=str(file), env=own, rng=self.rng.bit_generator.state)
-
-    def restore_state(self, state: dict) -> np.ndarray:
-        """Back to a save_state(); returns the observation. A new simulation loads SUMO's file: two restores of one
-        state continue alike step for step, though not exactly as the run that was saved (SUMO 1.28 reloads
-        positions to about 1 cm: PAPER.md, SUMO). Then the env's own state, and what SUMO's file forgets: the
-        humans' game (who ignores the ego, speed caps), the ego's driving modes and subscriptions."""
-        self._load(state["file"], 0)  # SUMO's rng comes from the file (--save-state.rng)
-        for k, v in state["env"].items():
-            setattr(self, k, dict(v) if isinstance(v, dict) and k != "task" else v)
-        self.rng = np.random.default_rng()
-        self.rng.bit_generator.state = state["rng"]
-        for h, k in self.decisions.items():
-            self.sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
-        for h, limit in self.capped.items():
-            self.sim.vehicle.setSpeed(h, limit)
-        self._ego_modes()
-        self._subscribe()
-        self.ego_alive, self._plan = True, None
-        return self.obs
-
-    def resample_future(self, rng: np.random.Generator):
-        """Draw from rng anew what the ego cannot know (a branch that must not see its test case's future): the
-        game weights and SVO of the humans present (Table 1's ranges; their kinematics are in SUMO's state and
-        show in how they drive) and every departure to come, its time, route and parameters."""
-        ranges = HUMAN_RANGES if self.cfg.svo_range is None else {**HUMAN_RANGES, "svo": self.cfg.svo_range}
-        for h, p in self.humans.items():
-            self.humans[h] = np.r_[[rng.uniform(*ranges[k]) for k in ("alpha1", "alpha2", "alpha3", "alpha4", "svo")], p[5:]]
-        self.rng = rng
-        self.next_spawn = self.sim.simulation.getTime() + rng.exponential(self.spawn_gap)  # departures are memoryless
 
     # ---- Helpers -----------------------------------------------------------------------------
     def show(self, T: int | None, beta: float | None):
@@ -745,16 +682,14 @@ class DrivingEnv(gymnasium.Env):
         self._renderer = self._renderer or scene.Renderer(self.net_file)
         return self._renderer.frame(self.snapshot())
 
-    def _ego_modes(self):
-        """The ego's driving modes (SUMO forgets them in a saved state)."""
+    def _ego_modes(self):  # the ego's driving modes, after its insertion or a load (a saved state forgets them)
         sim = self.sim
         sim.vehicle.setSpeedFactor(EGO, self.cfg.ego_depart_speed / sim.lane.getMaxSpeed(self.task["first"]))
         sim.vehicle.setSpeedMode(EGO, 32)  # SUMO never overrides the ego (PAPER.md, SUMO)
         sim.vehicle.setLaneChangeMode(EGO, 0)
         sim.vehicle.setColor(EGO, (255, 0, 0, 255))
 
-    def _subscribe(self):
-        """What _read reads each step: the ego, and every vehicle within d_max of it."""
+    def _subscribe(self):  # what _read reads each step: the ego, and every vehicle within d_max of it
         V = self.V
         self.sim.vehicle.subscribe(EGO, [V.VAR_POSITION, V.VAR_ANGLE, V.VAR_SPEED, V.VAR_LANE_ID, V.VAR_LANEPOSITION])
         self.sim.vehicle.subscribeContext(EGO, V.CMD_GET_VEHICLE_VARIABLE, self.cfg.perception,

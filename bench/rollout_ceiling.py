@@ -27,7 +27,9 @@ import experiment  # noqa: E402
 import numpy as np  # noqa: E402
 import rollout_timing  # noqa: E402
 import torch  # noqa: E402
+from exercises.compare import matched, read_row  # noqa: E402
 from exercises.paired import mcnemar, p_text  # noqa: E402
+from timing_probe import load_tarl  # noqa: E402
 
 OUT = ROOT / "results" / "rollout"
 SCENARIOS = ("intersection", "roundabout")
@@ -42,21 +44,16 @@ def tag(timing: str) -> str:
     return timing.replace("=", "").replace(",", "-")
 
 
-def other_cases(scenario: str, timing: str) -> dict:
-    """(round, case) -> the case's record, of TARL's seed-0 actor under a committed timing."""
-    path = (ROOT / "results" / "runs" / f"{scenario}-tarl-s0" / "eval.json" if timing == "learned"
-            else ROOT / "results" / "retime" / f"{scenario}-tarl-s0-{tag(timing)}.json")
-    row = next(r for r in json.loads(path.read_text())["rows"] if r["algo"] == "tarl")
-    return {(c["round"], c["case"]): c for c in row["cases"]}
+def other_row(scenario: str, timing: str) -> dict:
+    """TARL's seed-0 actor under a committed timing: its row of eval.json (the learned timing's) or of results/retime."""
+    return read_row(ROOT / "results" / "runs" / f"{scenario}-tarl-s0" / "eval.json" if timing == "learned"
+                    else ROOT / "results" / "retime" / f"{scenario}-tarl-s0-{tag(timing)}.json", "tarl")
 
 
 def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, commit: bool, out: Path = OUT):
     """Rounds 0..rounds-1 with the rollout timing, one at a time, each kept (and committed) as it finishes."""
     env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
-    state = experiment.load_checkpoint(ROOT / "results" / "runs" / f"{scenario}-tarl-s0" / "policy.pt", scenario, "tarl")
-    trainer = experiment.make_trainer("tarl", env, tarl.TrainConfig(timing=experiment.checkpoint_timing(state)), 0,
-                                      None, lambda *a: None, state=state)
-    trainer.load(state, resume=False)
+    trainer = load_tarl(env, scenario)  # the shipped seed-0 policy
     env.close()
     rows = [dict(algo="tarl", label=f"TARL, T {timing}", driver=experiment.timing_override(timing, trainer))]
     keep = out / f"{scenario}-{tag(timing)}"
@@ -76,16 +73,15 @@ def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, comm
 
 
 def paired(mine: dict, other: dict, rng: np.random.Generator) -> dict:
-    """Case by case on the cases both played: discordant counts, McNemar p, the success difference (mine - other)
-    with a 95 % interval from resampling the cases."""
-    keys = sorted(set(mine) & set(other))
-    assert all(mine[k]["start"] == other[k]["start"] for k in keys), "not the same test cases"
-    a = np.array([mine[k]["outcome"] == "arrival" for k in keys], float)
-    b = np.array([other[k]["outcome"] == "arrival" for k in keys], float)
+    """Case by case on the cases both rows played: discordant counts, McNemar p, the success difference (mine -
+    other) with a 95 % interval from resampling the cases."""
+    pairs = matched(mine, other)
+    assert all(x["start"] == y["start"] for x, y in pairs), "not the same test cases"
+    a, b = (np.array([c[k]["outcome"] == "arrival" for c in pairs], float) for k in (0, 1))
     d = a - b
     boot = d[rng.integers(len(d), size=(BOOTSTRAP, len(d)))].mean(1)
     only_a, only_b = int((d > 0).sum()), int((d < 0).sum())
-    return dict(n=len(keys), mine=a.mean(), other=b.mean(), only_mine=only_a, only_other=only_b,
+    return dict(n=len(pairs), mine=a.mean(), other=b.mean(), only_mine=only_a, only_other=only_b,
                 p=mcnemar(only_a, only_b), diff=d.mean(), low=float(np.percentile(boot, 2.5)),
                 high=float(np.percentile(boot, 97.5)))
 
@@ -101,7 +97,7 @@ def report(out: Path = OUT, timings=("rollout", "rollout=2")) -> str:
             if not rounds:
                 continue
             eps = [ep for p in rounds for ep in json.loads(p.read_text())["rows"][0]]
-            mine = {(ep["round"], ep["case"]): ep for ep in eps}
+            mine = dict(cases=eps)
             n = len(eps)
             rate = {o: np.mean([ep["outcome"] == o for ep in eps]) for o in ("arrival", "collision", "timeout")}
             steps, branch = np.mean([ep["steps"] for ep in eps]), np.mean([ep["branch_steps"] for ep in eps])
@@ -113,7 +109,7 @@ def report(out: Path = OUT, timings=("rollout", "rollout=2")) -> str:
                       f"{np.mean([ep['wall_s'] for ep in eps]):.1f} s wall time.", "",
                       "| against | its success | rollout only / it only arrives | McNemar p | rollout - it [95 % CI, cases resampled] |",
                       "|---|---|---|---|---|"]
-            res = {o: paired(mine, other_cases(scenario, o), rng) for o in OTHERS}
+            res = {o: paired(mine, other_row(scenario, o), rng) for o in OTHERS}
             lines += [f"| {o} | {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | {p_text(r['p'])} | "
                       f"{r['diff']:+.3f} [{r['low']:+.3f}, {r['high']:+.3f}] |" for o, r in res.items()]
             best = max(ABLATIONS, key=lambda o: res[o]["other"])

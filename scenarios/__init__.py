@@ -2,6 +2,7 @@
 
     intersection.*.xml, roundabout.*.xml   the networks: plain XML, built by `python scenarios/build.py`
     sumo_home, scenario_files, check_network   for world.py: where SUMO is, the files, can SUMO read them
+    follow                                 for world.py: the lanes of a route, read from the running SUMO
 """
 from __future__ import annotations
 
@@ -48,3 +49,20 @@ def check_network(net: Path, rou: Path):
         raise SystemExit(f"SUMO cannot load {net.name}: {error.strip()} Rebuild the networks with "
                          "`python scenarios/build.py`.")
     _checked.add(key)
+
+
+def follow(lanes_api, edges, lane):
+    """The lanes (internal ones included) a vehicle on `lane` takes along `edges`, or None. lanes_api: the running
+    simulation's lane domain (libsumo.lane or traci.lane)."""
+    lanes = [lane]
+    for nxt in edges[1:]:
+        links = [link for link in lanes_api.getLinks(lanes[-1]) if link[0].rsplit("_", 1)[0] == nxt]
+        if not links:
+            return None
+        via = links[0][4]
+        while via:  # an internal lane, possibly split at an internal junction
+            lanes.append(via)
+            inner = lanes_api.getLinks(via)
+            via = inner[0][4] if inner and inner[0][4] and inner[0][4] not in lanes else ""
+        lanes.append(links[0][0])
+    return lanes
