@@ -31,6 +31,7 @@ from pathlib import Path
 
 import tarl  # noqa: I001 (first: it sets OpenMP's wait policy before torch loads)
 import baselines
+import distil
 import numpy as np
 import rollout_timing
 import torch
@@ -95,10 +96,12 @@ def trained_rows(trainer) -> list[dict]:
 
 
 def timing_override(spec: str, trainer) -> Driver:
-    """--timing of a loaded model: learned, phased, random, fixed=T, cap=T or rollout[=T1,T2,...], with the model's
-    actor."""
+    """--timing of a loaded model: learned, phased, random, fixed=T, cap=T, rollout[=T1,T2,...] or distilled=PATH, with
+    the model's actor."""
     if (cfg := rollout_timing.parse(spec)) is not None:
         return rollout_timing.RolloutTiming(trainer.actor, trainer.seed, trainer.tc.timing, cfg)
+    if (student := distil.parse(spec)) is not None:
+        return distil.DistilledTiming(trainer.actor, student, trainer.seed, trainer.tc.timing)
     name, _, value = spec.partition("=")
     timing = {"learned": "taker", "cap": "taker"}.get(name, name)
     return Driver(timing, trainer.actor, trainer.timing_taker, trainer.seed, trainer.tc.timing,
@@ -279,10 +282,12 @@ BRANCHING = ("decisions", "branch_steps", "wall_s")  # of a case played by a rol
 
 
 def evaluation_key(cfg: EnvConfig, rows: list[dict], cases: int, seed: int) -> str:
-    """What a kept round was played with: the scenario, seed, cases per round, each row's algo, timing and weights."""
+    """What a kept round was played with: the world's version, the scenario, seed, cases per round, each row's algo,
+    timing and weights."""
     timings = [(d.timing, asdict(d.timing_cfg), d.fixed_T, d.cap, *([d.settings] if hasattr(d, "settings") else []))
                for d in (row["driver"] for row in rows)]
-    h = hashlib.sha1(repr((asdict(cfg), cases, seed, [row["algo"] for row in rows], timings)).encode())
+    h = hashlib.sha1(repr((world.WORLD_VERSION, asdict(cfg), cases, seed, [row["algo"] for row in rows],
+                           timings)).encode())
     for net in (n for row in rows for n in (row["driver"].actor, row["driver"].timing_taker) if n is not None):
         module = getattr(net, "policy", net)
         if not hasattr(module, "state_dict"):  # a hand-written actor (tests, exercises)
@@ -329,12 +334,12 @@ def summarize(row: dict, rounds: list[list[dict]], cfg: EnvConfig, seed: int) ->
            "rounds_without_success": sum(not c for c in crossing)}
     episodes, driver = [ep for r in rounds for ep in r], row["driver"]
     crashes, k3, k1 = [ep for ep in episodes if ep["outcome"] == "collision"], round(3.0 / cfg.dt), round(1.0 / cfg.dt)
-    if driver.timing in ("taker", "phased", "fixed", "random", "switch", "rollout"):
+    if driver.timing in ("taker", "phased", "fixed", "random", "switch", "rollout", "distilled"):
         minus = lambda b: float(np.mean(1.0 - np.concatenate(b))) if b else None  # noqa: E731
         out["beta_minus"] = {"all_steps": minus([ep["beta"] for ep in episodes]),
                              "3s_before_collision": minus([ep["beta"][-k3:] for ep in crashes]),
                              "1s_before_collision": minus([ep["beta"][-k1:] for ep in crashes])}
-    if driver.timing in ("taker", "phased", "random", "rollout"):
+    if driver.timing in ("taker", "phased", "random", "rollout", "distilled"):
         n = driver.timing_cfg.t_max
         share = lambda T: (np.bincount(np.concatenate(T), minlength=n + 1)[1:] / sum(map(len, T))).round(4).tolist()  # noqa: E731
         out["timing_share"] = {"all_steps": share([ep["T"] for ep in episodes]),  # of T = 1, ..., T_max
@@ -372,13 +377,13 @@ def timing_error(spec: str, algo: str) -> str | None:
     """What is wrong with --timing SPEC for a loaded actor of --algo ALGO (timing_override), or None."""
     name, eq, value = spec.partition("=")
     try:
-        if rollout_timing.parse(spec) is not None:
+        if rollout_timing.parse(spec) is not None or distil.parse(spec) is not None:
             return None
-    except ValueError as e:
+    except (ValueError, SystemExit) as e:
         return str(e)
     if name not in ("learned", "phased", "random", "fixed", "cap") or (name in ("fixed", "cap")) != bool(eq) \
             or (eq and not (value.isdigit() and int(value) >= 1)):
-        return f"{spec}: choose learned, phased, random, fixed=T, cap=T with T >= 1, or rollout[=T1,T2,...]"
+        return f"{spec}: choose learned, phased, random, fixed=T, cap=T with T >= 1, rollout[=T1,T2,...] or distilled=PATH"
     if name in ("learned", "phased", "cap") and ROWS[algo].timing not in ("taker", "phased"):
         return f"{name} needs a timing taker: --algo {algo} has none"
     return None
@@ -536,7 +541,7 @@ def main(argv=None):
     if args.algo != "lattice-idm" and not args.load:  # the trained row's gradient updates: {"actor": n, "timing": n}
         results[0]["updates"] = dict(trainer.updates)
     (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code,
-                                                        machine=machine(), rows=results)))
+                                                        world=world.WORLD_VERSION, machine=machine(), rows=results)))
     print(f"wrote {args.out / 'eval.json'}")
     shutil.rmtree(keep, ignore_errors=True)
 

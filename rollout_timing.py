@@ -6,7 +6,7 @@ learning: a one-step lookahead over a base policy (Bertsekas, rollout algorithms
 actor timed by the default T = 2.
 
 At a decision where T can matter (the actor's and the planner's accelerations differ by at least `gap`), the
-whole state is saved (save_state, below) and every candidate T is played from it: held for `hold` steps
+whole state is saved (DrivingEnv.save_state) and every candidate T is played from it: held for `hold` steps
 (Eqs. (11)-(12), a fresh a_t each step), then T = 2 to the episode's end. Each candidate meets the same K
 futures (common random numbers), drawn anew from seeds of their own (resample_future: the humans'
 game weights and SVO, the departures to come), never the test case's own future. The T with the best mean
@@ -29,43 +29,9 @@ import numpy as np
 
 import tarl
 from tarl import DrivingEnv, TimingConfig, beta, execute
-from world import CROSS, EGO, HUMAN_RANGES
+from world import HUMAN_RANGES
 
-# ---- Branching the world: its whole state saved, restored, and its future drawn anew ---------------------
-# What SUMO's file does not hold, and what DrivingEnv._read saw: right after a load, before a step, libsumo's context
-# subscription still returns vehicles of the simulation before it (SUMO 1.28), so the state is not read anew
-OWN_STATE = ("humans", "n_humans", "decisions", "capped", "t_start", "next_spawn", "task", "t_spawn", "accel",
-             "waited", "_headings", "shown", "jam_removals", "v", "heading", "xy", "s", "others", "obs")
-
-
-def save_state(env: DrivingEnv, file) -> dict:
-    """The whole state of env between two steps of an episode, for restore_state: SUMO's (saveState to `file`, every
-    digit and its rng) and the env's own (OWN_STATE, the traffic's rng)."""
-    if not env.ego_alive:
-        raise RuntimeError("save_state() saves an episode under way: call it between reset() and its end")
-    env.sim.simulation.saveState(str(file))
-    own = {k: dict(v) if isinstance(v, dict) and k != "task" else v for k, v in vars(env).items() if k in OWN_STATE}
-    return dict(file=str(file), env=own, rng=env.rng.bit_generator.state)
-
-
-def restore_state(env: DrivingEnv, state: dict) -> np.ndarray:
-    """Back to a save_state(); returns the observation. A new simulation loads SUMO's file: two restores of one state
-    continue alike step for step, though not exactly as the run that was saved (SUMO 1.28 reloads positions to
-    about 1 cm: PAPER.md, section 4). Then the env's own state, and what SUMO's file forgets: the humans' game (who
-    ignores the ego, speed caps), the ego's driving modes and subscriptions."""
-    env._load(state["file"], 0)  # SUMO's rng comes from the file (--save-state.rng)
-    for k, v in state["env"].items():
-        setattr(env, k, dict(v) if isinstance(v, dict) and k != "task" else v)
-    env.rng = np.random.default_rng()
-    env.rng.bit_generator.state = state["rng"]
-    for h, k in env.decisions.items():
-        env.sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
-    for h, limit in env.capped.items():
-        env.sim.vehicle.setSpeed(h, limit)
-    env._ego_modes()
-    env._subscribe()
-    env.ego_alive, env._plan = True, None
-    return env.obs
+# ---- Branching the world: DrivingEnv.save_state and restore_state, and a future drawn anew ---------------------
 
 
 def resample_future(env: DrivingEnv, rng: np.random.Generator):
@@ -122,43 +88,51 @@ class RolloutTiming(tarl.Driver):
         if self.held is not None and self.held[1] > 0:
             T, self.held[1] = self.held[0], self.held[1] - 1
         elif abs(float(a[0]) - env.base_action()) >= self.cfg.gap:
-            T = self.choose(env, deterministic)
+            T = self.choose(env, a, deterministic)
             self.held = [T, self.cfg.hold - 1]
         return a, T, float(beta(T, omega=self.timing_cfg.omega))  # Eq. (11)
 
-    def choose(self, env: DrivingEnv, deterministic: bool) -> int:
-        """The candidate with the best mean return over the K futures; the env is then back where it was,
-        reloaded (restore_state), with its own future."""
+    def choose(self, env: DrivingEnv, a, deterministic: bool) -> int:
+        """The candidate with the best mean return over the K futures, each branch's first step with this decision's
+        action a; the env is then back where it was, reloaded (DrivingEnv.restore_state), with its own future.
+        self.returns: (candidates, K) the return of each candidate in each future (common random numbers)."""
         if self._folder is None:
             self._folder = tempfile.TemporaryDirectory(prefix="tarl-rollout-")
-        state = save_state(env, Path(self._folder.name) / "state.xml")
+        state = env.save_state(Path(self._folder.name) / "state.xml")
         step = round((env.sim.simulation.getTime() - env.t_spawn) / env.cfg.dt)
         self.counts["decisions"] += 1
-        best = self.cfg.default_T
+        self.returns = np.zeros((len(self.cfg.candidates), self.cfg.futures))
         if len(self.cfg.candidates) > 1:
             futures = [[FUTURE_TAG, *self.case_seed, step, k] for k in range(self.cfg.futures)]
-            score = {T: np.mean([self.branch(env, state, T, np.random.default_rng(f), deterministic) for f in futures])
-                     for T in self.cfg.candidates}  # Eq. (31)'s return to the episode's end, undiscounted
-            best = max(score, key=lambda T: (score[T], T == self.cfg.default_T))  # a tie keeps the default
-        restore_state(env, state)
-        return best
+            self.returns = np.array([[self.branch(env, state, T, np.random.default_rng(f), deterministic, a)
+                                      for f in futures] for T in self.cfg.candidates])  # Eq. (31), undiscounted
+        env.restore_state(state)
+        return best_candidate(self.cfg, self.returns.mean(axis=1))
 
-    def branch(self, env: DrivingEnv, state: dict, T: int, rng: np.random.Generator, deterministic: bool) -> float:
-        rewards = play_branch(env, self.actor, state, T, rng, self.cfg, self.timing_cfg.omega, deterministic)
+    def branch(self, env: DrivingEnv, state: dict, T: int, rng: np.random.Generator, deterministic: bool, a) -> float:
+        rewards = play_branch(env, self.actor, state, T, rng, self.cfg, self.timing_cfg.omega, deterministic, first=a)
         self.counts["branch_steps"] += len(rewards)
         return float(np.sum(rewards))
 
 
+def best_candidate(cfg: RolloutConfig, score) -> int:
+    """The candidate T with the highest score (one per cfg.candidates); a tie keeps cfg.default_T."""
+    score = dict(zip(cfg.candidates, np.asarray(score, dtype=float).tolist()))
+    return max(score, key=lambda T: (score[T], T == cfg.default_T))
+
+
 def play_branch(env: DrivingEnv, actor, state: dict, T: int, rng: np.random.Generator, cfg: RolloutConfig,
-                omega: float, deterministic: bool = True, on_step=None) -> list[float]:
+                omega: float, deterministic: bool = True, on_step=None, first=None) -> list[float]:
     """The rewards (Eq. (31)) of a branch from a saved state, to the episode's end, in the future rng draws: T held
-    for cfg.hold steps (Eqs. (11)-(12), a fresh a_t each step), then cfg.default_T. on_step() after each step."""
-    obs = restore_state(env, state)
+    for cfg.hold steps (Eqs. (11)-(12), a fresh a_t each step after the first, which is `first` if given: the action
+    the decision was taken for), then cfg.default_T. on_step() after each step."""
+    obs = env.restore_state(state)
     resample_future(env, rng)
     rewards, done = [], False
     while not done:
         b = float(beta(T if len(rewards) < cfg.hold else cfg.default_T, omega=omega))
-        obs, r, terminated, truncated, _ = env.step(execute(env, actor.act(obs, deterministic), b))
+        a = first if first is not None and not rewards else actor.act(obs, deterministic)
+        obs, r, terminated, truncated, _ = env.step(execute(env, a, b))
         rewards.append(r)
         done = terminated or truncated
         if on_step is not None:

@@ -118,7 +118,7 @@ def test_a_human_stuck_inside_the_junction_is_removed_and_the_ego_never(empty_en
         if "stuck" in stopped and "stuck" not in ids:
             break
         obs, r, terminated, truncated, info = env.step(-3.0 if world.EGO in stopped or env.v > 3.0 else 0.0)
-        assert not (terminated or truncated)
+        assert not (terminated or truncated), info
     assert set(stopped) == {"stuck", world.EGO}
     assert "stuck" not in sim.vehicle.getIDList()  # removed ...
     assert sim.simulation.getTime() - stopped["stuck"] == pytest.approx(env.cfg.jam_time, abs=1.5)  # ... on time
@@ -165,7 +165,7 @@ def test_a_yielding_human_stops_before_the_conflict_point(monkeypatch):
         env.reset(seed=2, options={"route": "S_N"})
         for _ in range(200):
             obs, r, terminated, truncated, info = env.step(-3.0 if env.s > 50.0 or env.v == 0 else 0.0)
-            assert not (terminated or truncated)
+            assert not (terminated or truncated), info
             foes = {}  # human -> (ego's, human's distance [m]) to the conflict point the game plays for
             for h, d_e, d_h, *_ in env.sim.vehicle.getJunctionFoes(world.EGO, 60.0):
                 if env.decisions.get(h) == world.YIELD and d_e > 0 and d_h > 0 and d_e < foes.get(h, (np.inf,))[0]:
@@ -221,6 +221,34 @@ def test_a_case_starts_the_same_whatever_ran_before():
         env.close()
     assert starts[2] != starts[0]
     assert starts[0] == starts[1] == starts[3]
+
+
+def test_every_human_keeps_its_lane_after_a_case_loads():
+    """The lane rule (lane-change mode 0: lanes are chosen at departure) holds for every human of a loaded test case,
+    those that were still waiting to depart at the snapshot included: a saved state forgets the mode, and SUMO 1.28
+    lists those waiting only after a step. Checked after every step, with each human's lane on each edge."""
+    import experiment
+    env = world.DrivingEnv(EnvConfig(scenario="roundabout"))
+    late, lanes = set(), {}
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            for case in env.record_cases(experiment.test_seed(0, 0), 6, folder):
+                env.reset(options={"case": case})
+                present = set(env.sim.vehicle.getIDList())
+                done = False
+                while not done:
+                    _, _, terminated, truncated, _ = env.step(env.base_action())
+                    done = terminated or truncated
+                    for h in env.sim.vehicle.getIDList():
+                        if h == world.EGO:
+                            continue
+                        assert env.sim.vehicle.getLaneChangeMode(h) == 0, h
+                        late |= {h} & (case["humans"].keys() - present)  # waiting at the snapshot
+                        edge, lane = env.sim.vehicle.getRoadID(h), env.sim.vehicle.getLaneIndex(h)
+                        assert lanes.setdefault((case["seed"][1], h, edge), lane) == lane, f"{h} changed lanes on {edge}"
+    finally:
+        env.close()
+    assert late  # the vehicles the rule used to miss did enter
 
 
 # ---- EnvConfig's traffic shifts (spawn_gap, svo_range, human_level): the defaults are the paper's ----

@@ -1,5 +1,6 @@
-"""Branching the world (rollout_timing.save_state / restore_state / resample_future) and the rollout timing
+"""Branching the world (DrivingEnv.save_state / restore_state, rollout_timing.resample_future) and the rollout timing
 (rollout_timing.py), on the real simulator."""
+import pickle
 import subprocess
 import sys
 import tempfile
@@ -11,7 +12,7 @@ import pytest
 import experiment
 import rollout_timing
 import world
-from rollout_timing import RolloutConfig, RolloutTiming, resample_future, restore_state, save_state
+from rollout_timing import RolloutConfig, RolloutTiming, resample_future
 
 HERE = Path(__file__).resolve().parent
 
@@ -52,19 +53,34 @@ def test_a_restored_state_replays_the_recorded_steps_exactly(cases):
         env.reset(options={"case": case})
         for _ in range(20):
             obs = env.step([env.base_action()])[0]
-        state = save_state(env, folder / "state.xml")
+        state = env.save_state(folder / "state.xml")
         rng = np.random.default_rng(1)
         actions = np.clip(env.base_action() + rng.normal(0.0, 1.5, 400), -3.0, 2.0)
-        assert np.array_equal(restore_state(env, state), obs)  # the observation as it was saved
+        assert np.array_equal(env.restore_state(state), obs)  # the observation as it was saved
         first = play(env, actions)
         assert first[-1][2], "the episode ran to its end"
         env.reset(options={"case": recorded[-1]})  # something else in between: a restore forgets it
         play(env, [0.0] * 30)
-        assert np.array_equal(restore_state(env, state), obs)
+        assert np.array_equal(env.restore_state(state), obs)
         again = play(env, actions)
         assert len(again) == len(first)
         for (o1, r1, d1, i1), (o2, r2, d2, i2) in zip(first, again):
             assert np.array_equal(o1, o2) and r1 == r2 and d1 == d2 and i1 == i2
+
+
+def test_no_field_of_a_running_episode_escapes_the_saved_state(cases):
+    """Every field of the env that an episode's steps change is in DrivingEnv.EPISODE_STATE (or is the traffic's rng,
+    saved beside it, or the planner's cache, emptied by a restore): a field added to the env is caught here."""
+    env, recorded, _ = cases
+    env.reset(options={"case": recorded[0]})
+    env.step([env.base_action()])
+    here = lambda: {k: pickle.dumps(v) for k, v in vars(env).items() if k not in ("sim", "V")}  # noqa: E731
+    before = here()
+    for _ in range(15):
+        env.step([env.base_action()])
+    changed = {k for k, v in here().items() if before.get(k) != v}
+    assert {"humans", "v", "obs", "other_ids"} <= changed  # the check sees a step's changes
+    assert changed <= {*env.EPISODE_STATE, "rng", "_plan"}
 
 
 def test_a_state_is_saved_only_in_an_episode(cases):
@@ -72,7 +88,7 @@ def test_a_state_is_saved_only_in_an_episode(cases):
     env.reset(options={"case": recorded[0]})
     play(env, [2.0] * 400)
     with pytest.raises(RuntimeError, match="episode under way"):
-        save_state(env, folder / "state.xml")
+        env.save_state(folder / "state.xml")
 
 
 def test_a_resampled_future_keeps_what_the_ego_sees_and_draws_the_rest_anew(cases):
@@ -80,15 +96,15 @@ def test_a_resampled_future_keeps_what_the_ego_sees_and_draws_the_rest_anew(case
     env.reset(options={"case": recorded[1]})
     for _ in range(10):
         env.step([env.base_action()])
-    state = save_state(env, folder / "state.xml")
+    state = env.save_state(folder / "state.xml")
     own = [env.rng.random() for _ in range(3)]  # what the case's own stream would draw next
-    restore_state(env, state)
+    env.restore_state(state)
     humans = {h: p.copy() for h, p in env.humans.items()}
     resample_future(env, np.random.default_rng([rollout_timing.FUTURE_TAG, 0, 1, 10, 0]))
     assert [env.rng.random() for _ in range(3)] != own
     for h, p in env.humans.items():  # game weights and SVO drawn anew, kinematics kept
         assert not np.allclose(p[:5], humans[h][:5]) and np.array_equal(p[5:], humans[h][5:])
-    restore_state(env, state)
+    env.restore_state(state)
     assert [env.rng.random() for _ in range(3)] == own  # a restore brings the case's own future back
 
 

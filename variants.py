@@ -133,7 +133,7 @@ class BranchTrainer(tarl.Trainer):
             branch = self.step < self.tc.steps and self.rng.random() < self.BRANCH_SHARE  # within the budget
             if branch and abs(float(a[0]) - env.base_action()) >= cfg.gap:
                 x = tarl.timing_input(s, a, env.cfg)
-                state = rollout_timing.save_state(env, Path(self._folder.name) / "state.xml")
+                state = env.save_state(Path(self._folder.name) / "state.xml")
                 for T_b in self.rng.choice(np.arange(1, self.tc.timing.t_max + 1), self.CANDIDATES, replace=False):
                     future = np.random.default_rng(self.rng.integers(2**63))  # its own: not the main line's
                     rewards = rollout_timing.play_branch(env, self.actor, state, int(T_b), future, cfg,
@@ -142,7 +142,7 @@ class BranchTrainer(tarl.Trainer):
                     self.D_T.add(x, int(T_b), G, np.zeros(OBS_DIM + 1, np.float32), 0.0, True)
                     for _ in range(self.UPDATES):
                         self.learn(self.timing_taker, self.timing_batch, len(self.D_T) >= self.LEARNING_STARTS, "timing")
-                rollout_timing.restore_state(env, state)  # the main line goes on with its own future
+                env.restore_state(state)  # the main line goes on with its own future
             s2, r, terminated, truncated, info = env.step(tarl.execute(env, a, b))
             done = terminated or truncated
             self.obs = env.reset()[0] if done else s2

@@ -32,6 +32,9 @@ from scenarios import check_network, follow, scenario_files, sumo_home  # noqa: 
 
 HERE = Path(__file__).resolve().parent
 EGO = "ego"
+# What a test case plays, raised by every fix that changes it: 2, the humans waiting to depart at a snapshot keep their
+# lanes after a load (_sumo_step). Evaluations keep it (eval.json "world"); a kept round of another is played again
+WORLD_VERSION = 2
 
 # ---- Settings: every constant has one home (the planner's own tuning is in planner.py) ------------
 
@@ -131,27 +134,32 @@ def sector_index(phi_deg):
     return np.argmax((PHI_LOW < rounded[..., None]) & (rounded[..., None] <= PHI_HIGH), axis=-1), phi
 
 
+def sector_slots(ego_xy, ego_heading, others, cfg: EnvConfig):
+    """Eq. (28)'s choice of whom s_sur shows: the two nearest within d_max in each sector. Per vehicle shown, its
+    sector i, rank j (0: nearest), row k of others, distance d [m] and position angle phi [deg]."""
+    rel = others[:, :2] - ego_xy
+    d = np.hypot(rel[:, 0], rel[:, 1])
+    k = np.flatnonzero(d <= cfg.perception)
+    sector, phi = sector_index(np.degrees(wrap_angle(np.arctan2(rel[k, 1], rel[k, 0]) - ego_heading)))
+    order = np.lexsort((d[k], sector))  # by sector, then nearest first
+    sector, k, phi = sector[order], k[order], phi[order]
+    rank = np.arange(len(sector)) - np.searchsorted(sector, sector, side="left")
+    keep = rank < 2  # Eq. (28): the two nearest per sector, j = 1, 2
+    return sector[keep], rank[keep], k[keep], d[k[keep]], phi[keep]
+
+
 def observe(ego_xy, ego_heading, ego_speed, task, zone, others, cfg: EnvConfig) -> np.ndarray:
     """Eqs. (27)-(30): s = (s_ego, s_sur), 67 numbers. ego_xy [m] centre, ego_heading [rad, CCW from +x],
     ego_speed [m/s]; task, zone: indices of the one-hots h1, h2; others (M, >= 4): centre x, y [m],
     speed [m/s], heading [rad]."""
     s_sur = np.zeros((6, 2, 5))
-    rel = others[:, :2] - ego_xy
-    d = np.hypot(rel[:, 0], rel[:, 1])
-    seen = d <= cfg.perception
-    rel, d, o = rel[seen], d[seen], others[seen]
-    sector, phi = sector_index(np.degrees(wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - ego_heading)))
-    order = np.lexsort((d, sector))  # by sector, then nearest first
-    sector, d, phi, o = sector[order], d[order], phi[order], o[order]
-    rank = np.arange(len(sector)) - np.searchsorted(sector, sector, side="left")
-    keep = rank < 2  # Eq. (28): the two nearest per sector, j = 1, 2
-    i, j = sector[keep], rank[keep]
+    i, j, k, d, phi = sector_slots(ego_xy, ego_heading, others, cfg)
     # Eq. (27): d / d_max, v / v_max, (phi - phi_low) / (phi_high - phi_low), (theta - theta_ego + pi) / 2 pi
     s_sur[i, j, 0] = 1.0
-    s_sur[i, j, 1] = d[keep] / cfg.perception
-    s_sur[i, j, 2] = o[keep, 2] / cfg.v_norm
-    s_sur[i, j, 3] = (phi[keep] - PHI_LOW[i]) / (PHI_HIGH[i] - PHI_LOW[i])
-    s_sur[i, j, 4] = (wrap_angle(o[keep, 3] - ego_heading) + np.pi) / (2.0 * np.pi)
+    s_sur[i, j, 1] = d / cfg.perception
+    s_sur[i, j, 2] = others[k, 2] / cfg.v_norm
+    s_sur[i, j, 3] = (phi - PHI_LOW[i]) / (PHI_HIGH[i] - PHI_LOW[i])
+    s_sur[i, j, 4] = (wrap_angle(others[k, 3] - ego_heading) + np.pi) / (2.0 * np.pi)
     # Eq. (29): s_ego = (h1, h2, v_ego / v_max)
     s_ego = np.zeros(7)
     s_ego[[task, 3 + zone]] = 1.0
@@ -314,7 +322,7 @@ class DrivingEnv(gymnasium.Env):
                                 departLane=str(self.task["lane"]), departPos="0", departSpeed="max")
                 self._ego_modes()
             self._spawn_humans()
-            sim.simulationStep()
+            self._sumo_step()
             if free and EGO in sim.vehicle.getIDList():
                 break
             if free:  # not inserted after all: take it back and try again
@@ -346,7 +354,7 @@ class DrivingEnv(gymnasium.Env):
         self.accel = (v_cmd - self.v) / c.dt  # realised exactly: speed mode 32
         sim.vehicle.setSpeed(EGO, v_cmd)
         self._spawn_humans()
-        sim.simulationStep()
+        self._sumo_step()
         self._after_sumo_step()
         self._read()
         collided = self._collided()
@@ -469,7 +477,7 @@ class DrivingEnv(gymnasium.Env):
         road = ego[V.VAR_LANE_ID].rsplit("_", 1)[0]
         zone = 0 if road == self.task["edges"][0] else 2 if road == self.task["edges"][-1] else 1
         ctx = sim.vehicle.getContextSubscriptionResults(EGO)
-        ids = [k for k in ctx if k != EGO]
+        self.other_ids = ids = [k for k in ctx if k != EGO]  # the rows of others
         # others: centre x, y [m] (from the front bumper), speed [m/s], heading [rad], yaw rate [rad/s]
         self.others = np.zeros((len(ids), 5))
         if ids:
@@ -527,7 +535,7 @@ class DrivingEnv(gymnasium.Env):
         """The humans alone, no ego, for this long."""
         for _ in range(round(seconds / self.cfg.dt)):
             self._spawn_humans()
-            self.sim.simulationStep()
+            self._sumo_step()
             self._after_sumo_step()
 
     def close(self):
@@ -625,12 +633,21 @@ class DrivingEnv(gymnasium.Env):
         return cases
 
     def _load(self, file: str, seed: int):
-        """A saved state (a test case, or rollout_timing.save_state's) in a new simulation (~10 ms): loadState keeps
+        """A saved state (a test case, or save_state's) in a new simulation (~10 ms): loadState keeps
         something of the run before it (SUMO 1.28, PAPER.md), a new simulation makes it continue the same."""
         self._start(seed, warmup=False)
         self.sim.simulation.loadState(file)
         for h in self.sim.vehicle.getIDList():
             self.sim.vehicle.setLaneChangeMode(h, 0)  # a saved state forgets it (the ego's too: 0 as well)
+
+    def _sumo_step(self):
+        """One SUMO step. A loaded state also forgets the lane-change mode of the humans still waiting to depart, and
+        lists them only after a step (SUMO 1.28, PAPER.md): each human gets it back as it enters, before it can change
+        lanes (a no-op without a load: _spawn_humans set it)."""
+        self.sim.simulationStep()
+        for h in self.sim.simulation.getDepartedIDList():
+            if h in self.humans:
+                self.sim.vehicle.setLaneChangeMode(h, 0)
 
     def _load_case(self, case: dict):
         self._load(case["file"], case["seed"][0])
@@ -638,6 +655,42 @@ class DrivingEnv(gymnasium.Env):
         self.rng = np.random.default_rng(case["seed"])
         self.t_start = self.sim.simulation.getTime()
         self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
+
+    # ---- Branching: an episode's whole state, saved and restored (rollout_timing.py) --------------------
+    # The env's own fields of a running episode, which SUMO's file does not hold (test_rollout_timing checks that no
+    # field escapes). What _read saw is kept: right after a load, before a step, libsumo's context subscription still
+    # returns vehicles of the simulation before it (SUMO 1.28), so the state is not read anew
+    EPISODE_STATE = ("humans", "n_humans", "decisions", "capped", "t_start", "next_spawn", "task", "t_spawn", "accel",
+                     "waited", "_headings", "shown", "jam_removals", "v", "heading", "xy", "s", "others", "other_ids", "obs")
+
+    def save_state(self, file) -> dict:
+        """The whole state between two steps of an episode, for restore_state: SUMO's (saveState to `file`, every
+        digit and its rng) and the env's own (EPISODE_STATE, the traffic's rng)."""
+        if not self.ego_alive:
+            raise RuntimeError("save_state() saves an episode under way: call it between reset() and its end")
+        self.sim.simulation.saveState(str(file))
+        own = {k: dict(v) if isinstance(v, dict) and k != "task" else v for k, v in vars(self).items()
+               if k in self.EPISODE_STATE}
+        return dict(file=str(file), env=own, rng=self.rng.bit_generator.state)
+
+    def restore_state(self, state: dict) -> np.ndarray:
+        """Back to a save_state(); returns the observation. A new simulation loads SUMO's file: two restores of one
+        state continue alike step for step, though not exactly as the run that was saved (SUMO 1.28 reloads
+        positions to about 1 cm: PAPER.md, section 4). Then the env's own state, and what SUMO's file forgets: the
+        humans' game (who ignores the ego, speed caps), the ego's driving modes and subscriptions."""
+        self._load(state["file"], 0)  # SUMO's rng comes from the file (--save-state.rng)
+        for k, v in state["env"].items():
+            setattr(self, k, dict(v) if isinstance(v, dict) and k != "task" else v)
+        self.rng = np.random.default_rng()
+        self.rng.bit_generator.state = state["rng"]
+        for h, k in self.decisions.items():
+            self.sim.vehicle.setParameter(h, "junctionModel.ignoreIDs", EGO if k == CROSS else "")
+        for h, limit in self.capped.items():
+            self.sim.vehicle.setSpeed(h, limit)
+        self._ego_modes()
+        self._subscribe()
+        self.ego_alive, self._plan = True, None
+        return self.obs
 
     def fingerprint(self) -> str:
         """A hash of every vehicle now, the ego's route and the departures to come (the traffic's rng):

@@ -327,6 +327,7 @@ def evaluate_policy(policy, scenario: str = "roundabout", seed: int = 0, name: s
     code = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty"], capture_output=True,
                           text=True).stdout.strip() or None  # the project's commit, as tarl.py writes it
     (out / "eval.json").write_text(json.dumps(dict(scenario=scenario, seed=seed, code=code,
+                                                   world=experiment.world.WORLD_VERSION,
                                                    machine=experiment.machine(), rows=[result])))
     shutil.rmtree(keep, ignore_errors=True)
     log(f"wrote {out / 'eval.json'} in {(time.time() - t0) / 60:.1f} min")

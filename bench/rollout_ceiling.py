@@ -68,7 +68,8 @@ def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, comm
                        f"round {r}")
     result = experiment.evaluate(env.cfg, rows, rounds, cases, 0, workers, keep=keep)[0]
     path = out / f"{scenario}-tarl-s0-{tag(timing)}.json"
-    path.write_text(json.dumps(dict(scenario=scenario, seed=0, machine=experiment.machine(), rows=[result])))
+    path.write_text(json.dumps(dict(scenario=scenario, seed=0, world=experiment.world.WORLD_VERSION, machine=experiment.machine(),
+                                    rows=[result])))
     return path
 
 
