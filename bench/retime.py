@@ -18,6 +18,9 @@ from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from world import WORLD_VERSION  # noqa: E402
+
 SCENARIOS = ("intersection", "roundabout")
 TIMINGS = ("fixed=1", "fixed=2", "fixed=3", "random", "phased")
 TRAINED_WITH = {"fixed=2": "tarl-fixed-t", "random": "tarl-random-t"}  # the ablation trained with that timing
@@ -115,8 +118,9 @@ def main():
         for timing in args.timings:  # in the order given: each timing on both scenarios before the next
             for scenario in args.scenarios:
                 for seed in args.seeds:
-                    if not (args.results / f"{cell(scenario, seed, timing)}.json").exists():
-                        run(scenario, seed, timing, args)
+                    done = args.results / f"{cell(scenario, seed, timing)}.json"
+                    if not done.exists() or json.loads(done.read_text()).get("world", 1) != WORLD_VERSION:
+                        run(scenario, seed, timing, args)  # new, or played in an older world (world.py)
     collect(args)
     print((args.results / "summary.md").read_text())
 
