@@ -73,7 +73,14 @@ def regret(returns: np.ndarray, chosen, cfg: RolloutConfig) -> np.ndarray:
 
 class Teacher(RolloutTiming):
     """The rollout timing, recording at each decision what the students may see (features) and the labels: every
-    candidate's return in each future, and its choice. self.labels: one dict per decision of the episode."""
+    candidate's return in each future, and its choice T. self.labels: one dict per decision of the episode.
+    With a student, the student's T is executed instead (DAgger, Ross et al. 2011: the teacher labels the states
+    the student visits), recorded as "executed"."""
+
+    def __init__(self, actor, seed: int = 0, timing_cfg: TimingConfig = TimingConfig(),
+                 cfg: RolloutConfig = RolloutConfig(), student: "Student | None" = None):
+        super().__init__(actor, seed, timing_cfg, cfg)
+        self.student = student
 
     def new_episode(self, seed=None):
         super().new_episode(seed)
@@ -82,9 +89,11 @@ class Teacher(RolloutTiming):
     def choose(self, env: DrivingEnv, a, deterministic: bool) -> int:
         seen = features(env, a)  # before the branches, which leave the env as it was
         T = super().choose(env, a, deterministic)
+        executed = T if self.student is None else int(self.student.choose(design(seen, self.student.inputs))[0])
         step = round((env.sim.simulation.getTime() - env.t_spawn) / env.cfg.dt)
-        self.labels.append(dict(seen, a=np.float32(a[0]), returns=self.returns.astype(np.float32), T=T, step=step))
-        return T
+        self.labels.append(dict(seen, a=np.float32(a[0]), returns=self.returns.astype(np.float32), T=T,
+                                executed=executed, step=step))
+        return executed
 
 
 class Student(nn.Module):

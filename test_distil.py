@@ -11,7 +11,7 @@ import torch
 import distil
 import experiment
 import world
-from rollout_timing import RolloutConfig
+from rollout_timing import RolloutConfig, best_candidate
 from tarl import Driver, beta, blend, timing_input
 
 HERE = Path(__file__).resolve().parent
@@ -145,3 +145,42 @@ def test_a_bad_student_is_one_line_before_any_work(tmp_path):
         last = proc.stderr.strip().splitlines()[-1]  # argparse's usage, then one line
         assert proc.returncode == 2 and last.startswith("tarl.py: error: --timing distilled")
         assert ("not a student" if "=" in spec else "distilled=PATH") in last
+
+
+def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
+    """Five chunks of made-up labels (the teacher's layout): chunk 4 is held out, three students and a curve result."""
+    rng, cfg = np.random.default_rng(0), RolloutConfig()
+    keep = distillation.folder("roundabout", 0, tmp_path)
+    keep.mkdir(parents=True)
+    dims = dict(eq5=world.OBS_DIM + 1, deployed=5, routes=13 * 12, kinematics=36)
+    for k in range(5):
+        n = 40
+        x = {g: rng.random((n, d)).astype(np.float32) for g, d in dims.items()}
+        returns = rng.normal(50.0, 1.0, (n, 4, 3)).astype(np.float32)
+        returns[:, 0] += np.where(x["eq5"][:, :1] > 0.5, 20.0, -20.0)  # T = 1 pays where the first input is high
+        T = np.array([cfg.candidates[i] for i in returns.mean(-1).argmax(1)])
+        meta = dict(scenario="roundabout", actor_seed=0, chunk=k)
+        np.savez_compressed(keep / f"chunk{k:03d}.npz", meta=__import__("json").dumps(meta), returns=returns, T=T,
+                            case=np.arange(n) // 4, **x)
+    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "C-routes"])
+    st = __import__("json").loads((tmp_path / "roundabout-s0" / "students.json").read_text())
+    assert st["held_out_decisions"] == 40 and st["train_chunks"] == [0, 1, 2, 3]
+    assert [c["cases"] for c in st["curve"]["A"]] == [10, 10, 20, 40]  # 1/8 and 1/4 of 4 chunks: at least one
+    assert st["results"]["A"]["regret"] < st["baseline"]["T = 2 always"]["regret"]
+    student = distil.Student.load(tmp_path / "roundabout-s0" / "C-routes.pt")
+    assert student.inputs == "C-routes" and student.mean.numel() == dims["eq5"] + 5 + 36
+
+
+def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):
+    env, recorded = cases
+    cfg = RolloutConfig(candidates=(1, 2, 10), futures=1, hold=3)
+    student = distil.Student("B", world.OBS_DIM + 1 + 5, cfg)
+    with torch.no_grad():
+        student.net[-1].weight.zero_()
+        student.net[-1].bias.copy_(torch.tensor([1.0, 0.0, -1.0]))  # always T = 1
+    teacher = distil.Teacher(Alternating(), cfg=cfg, student=student)
+    ep = experiment.rollout(env, teacher, {"case": recorded[1]})
+    labels = teacher.labels
+    assert labels and all(d["executed"] == 1 for d in labels) and ep["branch_steps"] > 0
+    assert [d["T"] for d in labels] == [best_candidate(cfg, d["returns"].mean(1)) for d in labels]  # the teacher's
+    assert set(ep["T"]) == {1, 2}  # the student's T = 1 at its decisions, held; the default elsewhere

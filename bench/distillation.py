@@ -2,6 +2,8 @@
 
     python bench/distillation.py label --scenario roundabout --cases 1000 --commit   # resumable, a chunk per commit
     python bench/distillation.py train --scenario roundabout                         # students A, B, C and the curve
+    python bench/distillation.py evaluate --scenario roundabout --commit             # each student on Table 3's cases
+    python bench/distillation.py report                                              # results/distil/summary.md
 
 label: TARL's committed actor (results/runs/SCENARIO-tarl-sSEED/policy.pt, --actor-seed) crosses cases recorded from
 seeds of their own, never a test seed (label_seed), timed by the rollout teacher (distil.Teacher, the rollout timing's
@@ -14,12 +16,22 @@ held-out agreement with the teacher and regret (distil.regret: the return lost a
 per decision) are written to results/distil/SCENARIO-sSEED/students.md with the regret of T = 2 always, and the
 curve of regret against the number of training cases. The students go beside it as A.pt, B.pt, C.pt, for
 `tarl.py --load ... --timing distilled=PATH`.
+
+evaluate: each student times the same actor on the seed's 10 x 200 test cases (`tarl.py --load ... --timing
+distilled=...`, resumable), its eval.json kept as results/distil/SCENARIO-sSEED/eval-STUDENT.json.
+
+report: the verdict registered before any student was evaluated (issue 46): a student passes if it beats the better
+of the trained ablation rows tarl-fixed-t and tarl-random-t of the seed (the one with more successes on these cases)
+on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside it, each student against TARL, TARL's actor re-timed
+with T = 2 and a random T (results/retime) and the teacher on its 400 cases (results/rollout).
 """
 from __future__ import annotations
 
 import argparse
 import hashlib
 import json
+import re
+import subprocess
 import sys
 import tempfile
 import time
@@ -57,15 +69,17 @@ def policy_path(scenario: str, actor_seed: int) -> Path:
     return ROOT / "results" / "runs" / f"{scenario}-tarl-s{actor_seed}" / "policy.pt"
 
 
-def folder(scenario: str, actor_seed: int, out: Path = OUT) -> Path:
-    return out / "labels" / f"{scenario}-s{actor_seed}"
+def folder(scenario: str, actor_seed: int, out: Path = OUT, student: str | None = None) -> Path:
+    """Where a scenario's and actor's labels go: the teacher's own episodes, or (DAgger) those a student drove."""
+    return out / "labels" / (f"{scenario}-s{actor_seed}" + (f"-dagger-{student}" if student else ""))
 
 
-def meta(scenario: str, actor_seed: int, chunk: int, cases: int) -> dict:
+def meta(scenario: str, actor_seed: int, chunk: int, cases: int, student: distil.Student | None = None) -> dict:
     """What a chunk was labelled with (as JSON keeps it): a chunk with other meta is not resumed."""
-    return json.loads(json.dumps(dict(scenario=scenario, actor_seed=actor_seed, chunk=chunk, cases=cases, seed=label_seed(chunk),
-                actor=hashlib.sha1(policy_path(scenario, actor_seed).read_bytes()).hexdigest()[:16],
-                rollout=asdict(RolloutConfig()), world=experiment.world.WORLD_VERSION)))
+    m = dict(scenario=scenario, actor_seed=actor_seed, chunk=chunk, cases=cases, seed=label_seed(chunk),
+             actor=hashlib.sha1(policy_path(scenario, actor_seed).read_bytes()).hexdigest()[:16],
+             rollout=asdict(RolloutConfig()), world=experiment.world.WORLD_VERSION)
+    return json.loads(json.dumps(m if student is None else dict(m, student=student.inputs, student_key=student.key())))
 
 
 def read_chunk(path: Path) -> tuple[dict, dict]:
@@ -94,11 +108,12 @@ def label(args):
     path = policy_path(args.scenario, args.actor_seed)
     if not path.exists():
         raise SystemExit(f"no committed TARL policy {path.relative_to(ROOT)}: train it first (bench/table3.py)")
-    keep = folder(args.scenario, args.actor_seed, args.out)
+    student = distil.Student.load(args.student) if args.student else None
+    keep = folder(args.scenario, args.actor_seed, args.out, student and student.inputs)
     keep.mkdir(parents=True, exist_ok=True)
     todo = []
-    for k in range(-(-args.cases // args.chunk)):
-        file, want = keep / f"chunk{k:03d}.npz", meta(args.scenario, args.actor_seed, k, args.chunk)
+    for k in range(args.first_chunk, args.first_chunk + -(-args.cases // args.chunk)):
+        file, want = keep / f"chunk{k:03d}.npz", meta(args.scenario, args.actor_seed, k, args.chunk, student)
         if file.exists():
             if {k: v for k, v in read_chunk(file)[0].items() if k in want} != want:
                 raise SystemExit(f"{file} was labelled with other settings; move it away to relabel")
@@ -110,7 +125,7 @@ def label(args):
         return
     env = tarl.DrivingEnv(tarl.EnvConfig(scenario=args.scenario))
     trainer = load_tarl(env, args.scenario, path)
-    teacher = distil.Teacher(trainer.actor, 0, trainer.tc.timing, RolloutConfig())
+    teacher = distil.Teacher(trainer.actor, 0, trainer.tc.timing, RolloutConfig(), student)
     t0 = time.time()
     try:
         for n, (k, file, want) in enumerate(todo, 1):
@@ -130,11 +145,13 @@ def label(args):
         env.close()
 
 
-def load_labels(scenario: str, actor_seed: int, out: Path = OUT) -> tuple[dict, list[int]]:
-    """Every labelled decision of a scenario and actor, its chunk beside it; and the chunks found."""
-    files = sorted(folder(scenario, actor_seed, out).glob("chunk[0-9][0-9][0-9].npz"))
+def load_labels(scenario: str, actor_seed: int, out: Path = OUT, daggers=()) -> tuple[dict, list[int]]:
+    """Every labelled decision of a scenario and actor (and of the DAgger rounds of these students), its chunk beside
+    it; and the chunks found."""
+    folders = [folder(scenario, actor_seed, out, d) for d in (None, *daggers)]
+    files = sorted(f for d in folders for f in d.glob("chunk*.npz") if re.fullmatch(r"chunk\d+\.npz", f.name))
     if not files:
-        raise SystemExit(f"no labels in {folder(scenario, actor_seed, out)}: run `label` first")
+        raise SystemExit(f"no labels in {', '.join(map(str, folders))}: run `label` first")
     parts, chunks = [], []
     for f in files:
         m, a = read_chunk(f)
@@ -146,7 +163,7 @@ def load_labels(scenario: str, actor_seed: int, out: Path = OUT) -> tuple[dict, 
 
 
 def train(args):
-    data, chunks = load_labels(args.scenario, args.actor_seed, args.out)
+    data, chunks = load_labels(args.scenario, args.actor_seed, args.out, args.dagger)
     cfg = RolloutConfig()
     held = data["chunk"] % HELD_OUT == HELD_OUT - 1
     if not held.any() or held.all():
@@ -154,7 +171,7 @@ def train(args):
     train_chunks = sorted({int(c) for c in data["chunk"][~held]})
     adv = distil.advantages(data["returns"], cfg)
     test = {k: v[held] for k, v in data.items()}
-    out = args.out / f"{args.scenario}-s{args.actor_seed}"
+    out = args.out / (f"{args.scenario}-s{args.actor_seed}" + "-dagger" * bool(args.dagger))
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
 
@@ -182,33 +199,129 @@ def train(args):
     print(json.dumps(baseline))
 
 
+def evaluate(args):
+    out = args.out / f"{args.scenario}-s{args.actor_seed}"
+    for inputs in args.students:
+        student, dst = out / f"{inputs}.pt", out / f"eval-{inputs}.json"
+        if not student.exists():
+            raise SystemExit(f"no student {student}: run `train` first")
+        if dst.exists():
+            continue
+        work = ROOT / "runs" / "distil" / f"{args.scenario}-s{args.actor_seed}-{inputs}"
+        cmd = [sys.executable, str(ROOT / "tarl.py"), "--scenario", args.scenario, "--seed", str(args.actor_seed),
+               "--load", str(policy_path(args.scenario, args.actor_seed)), "--timing", f"distilled={student}",
+               "--eval-rows", "trained", "--threads", "1", "--workers", str(args.workers), "--out", str(work)]
+        print(f"student {inputs}: {' '.join(cmd[1:])}", flush=True)
+        if subprocess.run(cmd, cwd=ROOT).returncode != 0:
+            raise SystemExit(f"student {inputs}: the evaluation failed; run the same command again to resume it")
+        dst.write_text((work / "eval.json").read_text())
+        if args.commit:
+            from table3 import commit
+            commit([dst], f"distil: student {inputs} of the {args.scenario} (actor seed {args.actor_seed}) on the "
+                          "test cases")
+
+
+PAIRED = (("TARL", "runs/{s}-tarl-s{k}/eval.json", "tarl"), ("tarl-fixed-t", "runs/{s}-tarl-fixed-t-s{k}/eval.json",
+          "tarl-fixed-t"), ("tarl-random-t", "runs/{s}-tarl-random-t-s{k}/eval.json", "tarl-random-t"),
+          ("TARL's actor, T = 2", "retime/{s}-tarl-s{k}-fixed2.json", "tarl"),
+          ("TARL's actor, T random", "retime/{s}-tarl-s{k}-random.json", "tarl"),
+          ("the teacher (400 cases)", "rollout/{s}-tarl-s{k}-rollout.json", "tarl"))
+ABLATIONS = ("tarl-fixed-t", "tarl-random-t")  # the verdict's: Table 3's ablation rows, trained with that timing
+ALPHA = 0.05
+
+
+def report(args) -> str:
+    from exercises.compare import read_row
+    from exercises.paired import p_text
+    from rollout_ceiling import paired
+    lines = ["# A timing taught by a privileged teacher", "",
+             "Built by `python bench/distillation.py report` (bench/distillation.py's docstring: how). Regret: the "
+             "return (Eq. (31), to the episode's end) a choice loses per decision against the teacher's best "
+             "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
+             ""]
+    for scenario in SCENARIOS:
+        out = args.out / f"{scenario}-s{args.actor_seed}"
+        if not (out / "students.json").exists():
+            continue
+        st = json.loads((out / "students.json").read_text())
+        lines += [f"## {scenario}, actor seed {args.actor_seed}", "",
+                  f"{st['train_decisions']} training and {st['held_out_decisions']} held-out decisions "
+                  f"(chunks {', '.join(map(str, st['train_chunks']))} train).", "",
+                  "| choice | agreement | regret per decision | regret by training cases |", "|---|---|---|---|"]
+        for name, r in st["baseline"].items():
+            lines.append(f"| {name} | {r['agreement']:.3f} | {r['regret']:.3f} | - |")
+        for name, r in st["results"].items():
+            curve = ", ".join(f"{c['cases']}: {c['regret']:.3f}" for c in st["curve"][name])
+            lines.append(f"| student {name} ({', '.join(distil.groups(name))}) | {r['agreement']:.3f} | "
+                         f"{r['regret']:.3f} | {curve} |")
+        lines += [""]
+        rng = np.random.default_rng(0)
+        for name in st["results"]:
+            if not (out / f"eval-{name}.json").exists():
+                continue
+            mine = read_row(out / f"eval-{name}.json")
+            lines += [f"Student {name} on the test cases: success {mine['success_rate']['mean']:.3f}, collision "
+                      f"{mine['collision_rate']['mean']:.3f}, timeout {mine['timeout_rate']['mean']:.3f}.", "",
+                      "| against | world | its success | student only / it only arrives | McNemar p | student - it "
+                      "[95 % CI, cases resampled] |", "|---|---|---|---|---|---|"]
+            res = {}
+            for label, path, algo in PAIRED:
+                file = ROOT / "results" / path.format(s=scenario, k=args.actor_seed)
+                if file.exists():
+                    res[label] = r = paired(mine, read_row(file, algo), rng)
+                    lines.append(f"| {label} | {json.loads(file.read_text()).get('world', 1)} | {r['other']:.3f} | "
+                                 f"{r['only_mine']} / {r['only_other']} | {p_text(r['p'])} | {r['diff']:+.3f} "
+                                 f"[{r['low']:+.3f}, {r['high']:+.3f}] |")
+            if all(a in res for a in ABLATIONS):
+                best = max(ABLATIONS, key=lambda a: res[a]["other"])
+                r = res[best]
+                verdict = "passes" if r["diff"] > 0 and r["p"] < ALPHA else "does not pass"
+                lines += ["", f"The pre-registered test (the better ablation row here is {best}, "
+                          f"{r['other']:.3f}): student {name} **{verdict}** ({r['diff']:+.3f}, p {p_text(r['p'])}).", ""]
+    text = "\n".join(lines) + "\n"
+    (args.out / "summary.md").write_text(text)
+    return text
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
-    for name in ("label", "train"):
+    for name in ("label", "train", "evaluate", "report"):
         s = sub.add_parser(name)
-        s.add_argument("--scenario", choices=SCENARIOS, required=True)
+        if name != "report":
+            s.add_argument("--scenario", choices=SCENARIOS, required=True)
         s.add_argument("--actor-seed", type=int, default=0, help="whose committed TARL actor (results/runs)")
         s.add_argument("--out", type=Path, default=OUT, help="where the labels and students go")
     lab = sub.choices["label"]
     lab.add_argument("--cases", type=int, default=1000, help="cases to label, in chunks")
     lab.add_argument("--chunk", type=int, default=20, help="cases per chunk (one file, one commit)")
     lab.add_argument("--commit", action="store_true", help="git commit each chunk as it finishes")
-    sub.choices["train"].add_argument("--students", nargs="+", default=list(distil.INPUTS),
-                                      help="input sets: A, B, C, or one less a group (C-routes)")
+    lab.add_argument("--student", type=Path, help="DAgger: this student drives, the teacher labels (labels/...-dagger-X)")
+    lab.add_argument("--first-chunk", type=int, default=0, help="the first chunk's number (its seed: LABEL_SEED + it)")
+    for name in ("train", "evaluate"):
+        sub.choices[name].add_argument("--students", nargs="+", default=list(distil.INPUTS),
+                                       help="input sets: A, B, C, or one less a group (C-routes)")
+    sub.choices["train"].add_argument("--dagger", nargs="+", default=[], metavar="STUDENT",
+                                      help="also the labels of the states these students drove to (label --student)")
+    sub.choices["evaluate"].add_argument("--workers", type=int, default=1, help="evaluation processes")
+    sub.choices["evaluate"].add_argument("--commit", action="store_true", help="git commit each student's eval.json")
     args = p.parse_args(argv)
     if args.command == "label":
-        if args.cases < 1 or args.chunk < 1:
-            p.error("--cases and --chunk are at least 1")
+        if args.cases < 1 or args.chunk < 1 or args.first_chunk < 0:
+            p.error("--cases and --chunk are at least 1, --first-chunk at least 0")
+        if args.student is not None and not args.student.is_file():
+            p.error(f"--student {args.student}: no such file")
         torch.set_num_threads(1)
         label(args)
+    elif args.command == "report":
+        print(report(args))
     else:
         for inputs in args.students:
             try:
                 distil.groups(inputs)
             except ValueError as e:
                 p.error(str(e))
-        train(args)
+        (train if args.command == "train" else evaluate)(args)
 
 
 if __name__ == "__main__":
