@@ -184,3 +184,8 @@ def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):
     assert labels and all(d["executed"] == 1 for d in labels) and ep["branch_steps"] > 0
     assert [d["T"] for d in labels] == [best_candidate(cfg, d["returns"].mean(1)) for d in labels]  # the teacher's
     assert set(ep["T"]) == {1, 2}  # the student's T = 1 at its decisions, held; the default elsewhere
+    # the report: a student "evaluated" as TARL itself (its committed eval.json) ties TARL and does not pass
+    (tmp_path / "roundabout-s0" / "eval-A.json").write_text((HERE / "results/runs/roundabout-tarl-s0/eval.json").read_text())
+    text = distillation.report(__import__("argparse").Namespace(out=tmp_path, actor_seed=0))
+    assert "| TARL | 2 | " in text and "| 0 / 0 | 1 |" in text
+    assert "student A **does not pass**" in text and "student C-routes" in text
