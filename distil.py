@@ -98,7 +98,9 @@ class Teacher(RolloutTiming):
 
 class Student(nn.Module):
     """x (one input set's features, concatenated in GROUPS' order) -> each candidate's advantage over the default T,
-    in units of the reward's 20 (Eq. (31)). Carries its own input scaling, input set and candidates."""
+    in units of the reward's 20 (Eq. (31)). Carries its own input scaling, input set, candidates and margin: the
+    advantage [return] another T must be predicted to have before it is chosen over the default (most of the teacher's
+    choices are the noise of K futures, and an argmax over near-zero predictions would follow it)."""
 
     SCALE = 20.0  # [reward] +-20 at arrival or collision: the advantages come to about [-2, 2]
 
@@ -109,15 +111,17 @@ class Student(nn.Module):
                                  nn.Linear(hidden, len(cfg.candidates)))
         self.register_buffer("mean", torch.zeros(dim))
         self.register_buffer("std", torch.ones(dim))
+        self.register_buffer("margin", torch.zeros(()))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net((x - self.mean) / self.std)
 
     def choose(self, x: np.ndarray) -> np.ndarray:
-        """The T of each row of x (N, dim): the highest predicted advantage, a tie or less keeping the default."""
+        """The T of each row of x (N, dim): the highest predicted advantage beyond the margin, else the default."""
         with torch.no_grad():
-            adv = self(torch.as_tensor(np.atleast_2d(x), dtype=torch.float32)).numpy()
-        adv -= adv[:, [self.cfg.candidates.index(self.cfg.default_T)]]  # the default's own advantage is 0
+            adv = self(torch.as_tensor(np.atleast_2d(x), dtype=torch.float32)).numpy() * self.SCALE
+        other = np.array(self.cfg.candidates) != self.cfg.default_T
+        adv = adv - adv[:, ~other] - float(self.margin) * other  # the default's own advantage is 0
         return np.array([best_candidate(self.cfg, row) for row in adv])
 
     def save(self, path):

@@ -11,11 +11,12 @@ defaults). Each chunk of --chunk cases is one compressed file, results/distil/la
 every decision's features, action, each candidate's return in each future and the teacher's T, and each case's
 outcome; an interrupted run loses at most the chunk it was playing.
 
-train: chunks K % 5 == 4 are held out (cases, never decisions, are split). Each student is fitted on the others; the
-held-out agreement with the teacher and regret (distil.regret: the return lost against the best candidate, mean
-per decision) are written to results/distil/SCENARIO-sSEED/students.md with the regret of T = 2 always, and the
-curve of regret against the number of training cases. The students go beside it as A.pt, B.pt, C.pt, for
-`tarl.py --load ... --timing distilled=PATH`.
+train: chunks K % 5 == 4 are held out (cases, never decisions, are split). Each student is fitted on the others,
+its margin chosen on every 4th training chunk (choose_margin); the held-out agreement with the teacher and regret
+(distil.regret: the return lost against the best candidate, mean per decision), overall and on the decisive
+decisions, go to results/distil/SCENARIO-sSEED/students.json with those of T = 2 always, and the curve of regret
+against the number of training cases. The students go beside it as A.pt, B.pt, C.pt, for `tarl.py --load ...
+--timing distilled=PATH`.
 
 evaluate: each student times the same actor on the seed's 10 x 200 test cases (`tarl.py --load ... --timing
 distilled=...`, resumable), its eval.json kept as results/distil/SCENARIO-sSEED/eval-STUDENT.json.
@@ -54,6 +55,8 @@ SCENARIOS = ("intersection", "roundabout")
 LABEL_SEED = 500_000  # chunk K's cases come from SUMO and traffic seed LABEL_SEED + K
 HELD_OUT = 5  # chunks K % HELD_OUT == HELD_OUT - 1 are held out
 CURVE = (0.125, 0.25, 0.5, 1.0)  # shares of the training chunks on the curve
+MARGINS = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0)  # [return] the students' margins tried (distil.Student)
+VALIDATION = 4  # every 4th training chunk chooses the margin
 DECISIVE = 5.0  # [return] a decision is decisive where some candidate beats T = 2 by this much (an outcome at stake)
 
 
@@ -163,6 +166,21 @@ def load_labels(scenario: str, actor_seed: int, out: Path = OUT, daggers=()) -> 
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, chunks
 
 
+def choose_margin(data: dict, adv: np.ndarray, inputs: str, train_chunks: list[int], cfg: RolloutConfig) -> dict:
+    """The student's margin (distil.Student) with the least regret on every VALIDATION-th training chunk, the student
+    fitted on the others (held-out chunks never take part); a tie goes to the larger margin."""
+    val_chunks = train_chunks[VALIDATION - 1::VALIDATION] or train_chunks[-1:]
+    fit_on = np.isin(data["chunk"], [c for c in train_chunks if c not in val_chunks])
+    val = np.isin(data["chunk"], val_chunks)
+    student = distil.fit(distil.design(data, inputs)[fit_on], adv[fit_on], inputs, cfg)
+    regrets = {}
+    for m in MARGINS:
+        student.margin.fill_(m)
+        regrets[m] = float(distil.regret(data["returns"][val], student.choose(distil.design(data, inputs)[val]), cfg).mean())
+    best = min(MARGINS, key=lambda m: (regrets[m], -m))
+    return dict(margin=best, validation_chunks=val_chunks, validation_regret=regrets)
+
+
 def train(args):
     data, chunks = load_labels(args.scenario, args.actor_seed, args.out, args.dagger)
     cfg = RolloutConfig()
@@ -184,11 +202,13 @@ def train(args):
                     decisive_agreement=float(np.mean(chosen[decisive] == test["T"][decisive])),
                     decisive_regret=float(lost[decisive].mean()))
 
-    results, curve = {}, {}
+    results, curve, margins = {}, {}, {}
     for inputs in args.students:
+        margins[inputs] = choose_margin(data, adv, inputs, train_chunks, cfg)
         for share in CURVE:
             use = np.isin(data["chunk"], train_chunks[:max(1, round(share * len(train_chunks)))]) & ~held
             student = distil.fit(distil.design(data, inputs)[use], adv[use], inputs, cfg)
+            student.margin.fill_(margins[inputs]["margin"])
             curve.setdefault(inputs, []).append(dict(cases=int(len({(c, k) for c, k in zip(data["chunk"][use],
                                                                                              data["case"][use])})),
                                                      decisions=int(use.sum()),
@@ -198,7 +218,7 @@ def train(args):
         print(f"student {inputs}: {results[inputs]}", flush=True)
     baseline = {"T = 2 always": scores(np.full(held.sum(), cfg.default_T)),
                 "the teacher's most frequent T": scores(np.full(held.sum(), np.bincount(data["T"][~held]).argmax()))}
-    (out / "students.json").write_text(json.dumps(dict(results=results, curve=curve, baseline=baseline,
+    (out / "students.json").write_text(json.dumps(dict(results=results, curve=curve, baseline=baseline, margins=margins,
                                                        train_chunks=train_chunks, held_out_decisions=int(held.sum()),
                                                        decisive_decisions=int(decisive.sum()),
                                                        train_decisions=int((~held).sum())), indent=1))
@@ -260,7 +280,8 @@ def report(args) -> str:
                   "regret by training cases |", "|---|---|---|---|---|---|"]
         for name, r in [*st["baseline"].items(), *st["results"].items()]:
             curve = ", ".join(f"{c['cases']}: {c['regret']:.3f}" for c in st["curve"].get(name, []))
-            who = f"student {name} ({', '.join(distil.groups(name))})" if name in st["results"] else name
+            who = (f"student {name} ({', '.join(distil.groups(name))}; margin {st['margins'][name]['margin']:g})"
+                   if name in st["results"] else name)
             lines.append(f"| {who} | {r['agreement']:.3f} | {r['regret']:.3f} | {r['decisive_agreement']:.3f} | "
                          f"{r['decisive_regret']:.3f} | {curve or '-'} |")
         lines += [""]
