@@ -20,10 +20,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from exercises.compare import discordant, matched, read_row  # noqa: E402
-from exercises.paired import mcnemar, p_text  # noqa: E402
+from exercises.compare import read_row  # noqa: E402
+from exercises.paired import p_text, paired  # noqa: E402
 
 SCENARIOS = ("intersection", "roundabout")
 ALGOS = ("tarl", "tarl-fixed-t", "tarl-random-t")
@@ -74,10 +76,8 @@ def collect(args):
                 cases, m = row["cases"], lambda key: row[key]["mean"]
                 versus = "-"
                 if algo != args.algos[0] and first is not None:
-                    d = discordant(matched(row, first))  # (row's outcome, first's) where exactly one arrives
-                    mine = sum(n for (x, _), n in d.items() if x == "arrival")
-                    theirs = sum(d.values()) - mine
-                    versus = f"{mine} / {theirs}, p {p_text(mcnemar(mine, theirs))}"
+                    r = paired(row, first, np.random.default_rng(0))  # where exactly one arrives, McNemar
+                    versus = f"{r['only_mine']} / {r['only_other']}, p {p_text(r['p'])}"
                 lines.append(f"| {scenario} | {gap:g} | {algo} | {len(cases)} | {m('success_rate'):.3f} | "
                              f"{m('collision_rate'):.3f} | {m('timeout_rate'):.3f} | {m('crossing_time'):.1f} | {versus} |")
     args.results.mkdir(parents=True, exist_ok=True)

@@ -41,14 +41,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import experiment  # noqa: E402
-from exercises.compare import discordant, matched  # noqa: E402
-from exercises.paired import bootstrap, find_row, mcnemar, p_text, per_round_difference  # noqa: E402
+from exercises.paired import BOOTSTRAP, find_row, p_text, paired  # noqa: E402
 from table3 import NAMES, TABLE_ROWS  # noqa: E402
 from tarl import Driver  # noqa: E402
 from world import OBS_DIM, SCENARIOS, DrivingEnv, EnvConfig  # noqa: E402
 
 RESULTS = ROOT / "results" / "runs"  # Table 3's rows: SCENARIO-ALGO-sSEED/eval.json
-BOOTSTRAP = 10_000  # resamples of the rounds for the success difference's 95 % interval, as exercises.paired
 MARK = "the policy "  # how a PolicyError's line begins, also after a worker's "evaluation round R failed: "
 
 
@@ -237,37 +235,31 @@ def table3_rows(runs, scenario: str, seed: int) -> dict:
     return {algo: dict(row, label=NAMES[algo]) for algo, row in found.items() if row is not None}
 
 
-def paired(a: dict, b: dict) -> str:
+def versus(a: dict, b: dict) -> str:
     """a against b on the cases both played, a line of report's: the cases where only one arrives (how the other
-    failed), McNemar's exact p, the success difference with its 95 % interval (exercises.paired's, --seed 0)."""
-    pairs = matched(a, b)
-    differ = sum(x["start"] != y["start"] for x, y in pairs)
-    if not pairs or differ:
-        return f"{b['label']:<26}" + (f"{differ} of {len(pairs)} cases began differently (start fingerprints): not the "
-                                      "same test cases (another SUMO or CPU?)" if pairs else "no case in common")
-    only = discordant(pairs)
-    mine = only["arrival", "collision"], only["arrival", "timeout"]  # only a arrives: b collides / times out
-    theirs = only["collision", "arrival"], only["timeout", "arrival"]
-    mean, low, high = bootstrap([per_round_difference(a, b)], BOOTSTRAP, np.random.default_rng(0))
-    counts = [f"{sum(n)} ({n[0]} / {n[1]})" for n in (mine, theirs)]
-    return (f"{b['label']:<26}{counts[0]:>22}{counts[1]:>22}{p_text(mcnemar(sum(mine), sum(theirs))):>12}"
-            f"{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>26}")
+    failed), McNemar's exact p, the success difference with its 95 % interval (exercises.paired's, seeded 0)."""
+    try:
+        r = paired(a, b, np.random.default_rng(0))
+    except ValueError as e:
+        return f"{b['label']:<26}{e} (another SUMO or CPU?)"
+    mine, theirs = (f"{sum(n)} ({n[0]} / {n[1]})" for n in (r["counts"][:2], r["counts"][2:]))
+    interval = f"{r['diff']:+.3f} [{r['low']:+.3f}, {r['high']:+.3f}]"
+    return f"{b['label']:<26}{mine:>22}{theirs:>22}{p_text(r['p']):>12}{interval:>26}"
 
 
 def report(row: dict, table: dict, scenario: str, seed: int) -> str:
     """The row beside Table 3's rows of its seed and scenario, then case by case against TARL and the best row."""
     best = max(table, key=lambda algo: table[algo]["success_rate"]["mean"])
     sizes = " or ".join(f"{r} x {c}" for r, c in sorted({(r["rounds"], r["cases_per_round"]) for r in table.values()}))
-    rounds = len({c["round"] for c in row["cases"]})
     return "\n".join([
         f"{row['label']}, outside the paper ({row['rounds']} x {row['cases_per_round']} cases), beside Table 3's rows "
         f"of seed {seed} on the {scenario} ({sizes} cases):", experiment.table([*table.values(), row]),
         f"{row['label']} case by case, on the cases both played: where only one arrives (how the other failed: "
         f"collision / timeout), McNemar's exact p, the success difference with a 95 % interval from {BOOTSTRAP:,} "
-        f"bootstrap resamples of the {rounds} round{'s' * (rounds > 1)} (the resampling unit: a round of test cases)",
+        "bootstrap resamples of the cases within each round (exercises.paired.paired: why the case)",
         f"{'against':<26}{'only it arrives':>22}{'only the row arrives':>22}{'McNemar p':>12}"
         f"{'success difference':>26}",
-        *(paired(row, dict(table[algo], label=table[algo]["label"] + " (best)" * (algo == best != "tarl")))
+        *(versus(row, dict(table[algo], label=table[algo]["label"] + " (best)" * (algo == best != "tarl")))
           for algo in dict.fromkeys(("tarl", best)))])
 
 

@@ -27,8 +27,8 @@ import experiment  # noqa: E402
 import numpy as np  # noqa: E402
 import rollout_timing  # noqa: E402
 import torch  # noqa: E402
-from exercises.compare import matched, read_row  # noqa: E402
-from exercises.paired import mcnemar, p_text  # noqa: E402
+from exercises.compare import read_row  # noqa: E402
+from exercises.paired import p_text, paired  # noqa: E402
 from timing_probe import load_tarl  # noqa: E402
 
 OUT = ROOT / "results" / "rollout"
@@ -37,7 +37,6 @@ ABLATIONS = ("fixed=2", "random")  # the timings a learned one must beat (Table 
 OTHERS = ("learned", *ABLATIONS, "fixed=3")
 MARGIN = 0.01  # success the rollout timing must gain over the better ablation, with McNemar p < ALPHA, to go on
 ALPHA = 0.05
-BOOTSTRAP = 10_000  # resamples of the cases for the difference's 95 % interval
 
 
 def tag(timing: str) -> str:
@@ -73,20 +72,6 @@ def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, comm
     return path
 
 
-def paired(mine: dict, other: dict, rng: np.random.Generator) -> dict:
-    """Case by case on the cases both rows played: discordant counts, McNemar p, the success difference (mine -
-    other) with a 95 % interval from resampling the cases."""
-    pairs = matched(mine, other)
-    assert all(x["start"] == y["start"] for x, y in pairs), "not the same test cases"
-    a, b = (np.array([c[k]["outcome"] == "arrival" for c in pairs], float) for k in (0, 1))
-    d = a - b
-    boot = d[rng.integers(len(d), size=(BOOTSTRAP, len(d)))].mean(1)
-    only_a, only_b = int((d > 0).sum()), int((d < 0).sum())
-    return dict(n=len(pairs), mine=a.mean(), other=b.mean(), only_mine=only_a, only_other=only_b,
-                p=mcnemar(only_a, only_b), diff=d.mean(), low=float(np.percentile(boot, 2.5)),
-                high=float(np.percentile(boot, 97.5)))
-
-
 def report(out: Path = OUT, timings=("rollout", "rollout=2")) -> str:
     rng, lines = np.random.default_rng(0), ["# The ceiling of a state-dependent timing", "",
                                             "Built by `python bench/rollout_ceiling.py --report` from the rounds in "
@@ -108,7 +93,7 @@ def report(out: Path = OUT, timings=("rollout", "rollout=2")) -> str:
                       f"{np.mean([ep['decisions'] for ep in eps]):.1f} decisions, {steps:.0f} steps, {branch:.0f} branch "
                       f"steps ({(steps + branch) / steps:.0f} x the simulator steps of a plain episode), "
                       f"{np.mean([ep['wall_s'] for ep in eps]):.1f} s wall time.", "",
-                      "| against | its success | rollout only / it only arrives | McNemar p | rollout - it [95 % CI, cases resampled] |",
+                      "| against | its success | rollout only / it only arrives | McNemar p | rollout - it [95 % CI, cases resampled in each round] |",
                       "|---|---|---|---|---|"]
             res = {o: paired(mine, other_row(scenario, o), rng) for o in OTHERS}
             lines += [f"| {o} | {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | {p_text(r['p'])} | "

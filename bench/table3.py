@@ -15,9 +15,9 @@ checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipp
 The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
 beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value, with the number of
 seeds (n) beside every row; a row of one seed shows its mean and per-round std, no +- over seeds. With
---readme it also writes RESULTS.md's table of the paper's claims, each with a verdict by the rule of
-`verdict` (RESULTS.md, "How the numbers were made"), and the paired differences at the paper's budget
-with a 95 % interval over the rounds resampled.
+--readme it also writes RESULTS.md's table of the paper's claims, each tested over whatever seeds its rows have
+(`claim_rows`: Welch's test by scipy.stats, RESULTS.md, "How the numbers were made"), and the paired differences
+at the paper's budget with a 95 % interval over the cases resampled (exercises.paired.paired).
 --extra reads eval.json files of policies outside the paper (bench/own_agent.py's) as cells at the default budget, of
 their file's scenario and seed: each row is listed after Table 3's rows and the ablations as "LABEL (outside the
 paper)", with "-" in the paper's columns. Those tables are the user's, not the committed results: they go to stdout and
@@ -38,6 +38,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -367,44 +368,21 @@ def each_seed(found: dict) -> list[str]:
     return lines
 
 
-def paired_difference(a: dict, b: dict, seed: int = 0) -> str:
-    """a's success minus b's on the cases both played, with a 95 % percentile interval whose resampling unit is the
-    round: the 10 rounds' differences resampled 10,000 times (exercises.paired's bootstrap, seeded)."""
-    mean, low, high = paired.bootstrap([paired.per_round_difference(a, b)], 10_000, np.random.default_rng(seed))
-    return f"{mean:+.3f} [{low:+.3f}, {high:+.3f}]"
-
-
-def spread_of_difference(found: dict, scenario: str, a: str, b: str, key: str = "success_rate") -> float:
-    """sqrt(s_a^2 + s_b^2), s the std over seeds (ddof = 0) of each row's seed means at the default budget: how far
-    apart one seed of each may land (the verdict rule's spread)."""
-    return float(np.hypot(*(over_seeds(found[DEFAULT][(scenario, algo)], key)[1] for algo in (a, b))))
-
-
-def band(found: dict, scenario: str, algo: str) -> str:
-    """BAND x the spread of TARL's difference to `algo`, or "-" where either has fewer than two seeds at the default
-    budget."""
-    if any(len(found.get(DEFAULT, {}).get((scenario, x), {})) < 2 for x in ("tarl", algo)):
-        return "-"
-    return f"{BAND * spread_of_difference(found, scenario, 'tarl', algo):.3f}"
-
-
 def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list[str]:
     """RESULTS.md's Table 3 at the paper's budget, one seed (n = 1): each row's success with its per-round std,
     collisions / timeouts and crossing time after `budget` steps, beside the same seed's success at the default budget
     and Table 3's; "not run" where a row has no cell at that budget yet. Paired against TARL at that budget on the same
-    cases: TARL's success minus the row's with a 95 % interval over the 10 rounds resampled, BAND x the spread of
-    that difference over seeds at the default budget (the verdict rule's band), and the cases only TARL arrives in /
-    only the row does."""
+    cases (exercises.paired.paired, seeded 0): TARL's success minus the row's with its 95 % interval and the cases only
+    TARL arrives in / only the row does. One seed: two trained policies on the same cases, no verdict on the methods."""
     lines = [f"| scenario | model | seeds | success, {budget[0]:,} steps (per-round std) | collisions / timeouts | "
-             f"crossing [s] | success, {STEPS:,} steps | paper | TARL - row, 95 % interval (rounds resampled) | "
-             "2 s_d | only TARL / only it arrives |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"crossing [s] | success, {STEPS:,} steps | paper | TARL - row, 95 % interval (cases resampled) | "
+             "only TARL / only it arrives (two policies, the same cases) |", "|---" * 10 + "|"]
     for scenario, algo in [(s, a) for s in SCENARIOS for a in algos]:
         long, short = (found.get(b, {}).get((scenario, algo), {}).get(seed) for b in (budget, DEFAULT))
         ref, tarl_row = PAPER[scenario].get(algo), found.get(budget, {}).get((scenario, "tarl"), {}).get(seed)
         if not (long or short):
             continue
-        paired_with = long and tarl_row and algo != "tarl"
-        pairs = outcome_pairs(tarl_row, long) if paired_with else None
+        r = paired.paired(tarl_row, long, np.random.default_rng(0)) if long and tarl_row and algo != "tarl" else None
         rates = ("not run", "-", "-") if long is None else (
             f"{long['success_rate']['mean']:.3f} ({long['success_rate']['std']:.3f})",
             f"{long['collision_rate']['mean']:.3f} / {long['timeout_rate']['mean']:.3f}",
@@ -412,10 +390,8 @@ def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list
         lines.append(f"| {scenario} | {NAMES[algo]} | n = 1 | {' | '.join(rates)} | "
                      f"{'-' if short is None else format(short['success_rate']['mean'], '.3f')} | "
                      f"{f'{ref[0]:.3f}' if ref else '-'} | "
-                     f"{paired_difference(tarl_row, long) if paired_with else '-'} | "
-                     f"{band(found, scenario, algo) if algo != 'tarl' else '-'} | "
-                     + ("-" if pairs is None else f"{sum(n for (a, b), n in pairs.items() if a == 'arrival' != b)}"
-                        f" / {sum(n for (a, b), n in pairs.items() if b == 'arrival' != a)}") + " |")
+                     + ("- | - |" if r is None else f"{r['diff']:+.3f} [{r['low']:+.3f}, {r['high']:+.3f}] | "
+                                                    f"{r['only_mine']} / {r['only_other']} |"))
     return lines
 
 
@@ -425,59 +401,100 @@ def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list
 CLAIMS = tuple((scenario, "tarl", other, "success_rate") for scenario in SCENARIOS for other in
                ("lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo", *ABLATIONS[:2])) + tuple(
     (scenario, "tarl", "lattice-idm", "crossing_time") for scenario in SCENARIOS)
-BAND = 2  # a difference beyond BAND x the spread of the difference is beyond the seeds' spread (about 95 %)
+ALPHA = 0.05  # two-sided: a claim holds or fails where the 95 % CI of its difference excludes 0
+POWER = 0.8  # an undecided claim's seeds to settle it: those at which Welch's test finds its difference this often
+MARGIN = {"success_rate": 0.03}  # equivalence: the 90 % CI inside +-MARGIN (two one-sided tests at ALPHA each)
+MOST_SEEDS = 10_000  # seeds_to_settle looks no further
 
 
-def verdict(d: float, spread: float) -> str:
-    """The rule, on the difference d (positive: the paper's order) and the spread of the difference, the two rows'
-    stds over seeds at the default budget added in quadrature: beyond BAND x spread either way it holds or fails,
-    else it is within the spread."""
-    return "holds" if d > BAND * spread else "fails" if d < -BAND * spread else "within the spread"
+def welch(a, b) -> dict:
+    """Welch's test of mean(a) - mean(b), a and b the seed means of two rows (scipy.stats.ttest_ind, equal_var=False):
+    the difference d and its 95 % and 90 % confidence intervals."""
+    test = stats.ttest_ind(a, b, equal_var=False)
+    return dict(d=float(np.mean(a) - np.mean(b)), ci=tuple(map(float, test.confidence_interval(1 - ALPHA))),
+                ci90=tuple(map(float, test.confidence_interval(1 - 2 * ALPHA))))
 
 
-def combined(first: str, second: str) -> str:
-    """One verdict from the two budgets': the one that is not "within the spread", or both if they contradict."""
-    if "within the spread" in (first, second) or first == second:
-        return first if first != "within the spread" else second
-    return f"{first} at 10^5, {second} at 5 x 10^5"
+def verdict(test: dict, margin: float | None) -> str:
+    """A claim's verdict from `welch` (+ in the claim's order): "holds" or "fails" where the 95 % CI excludes 0;
+    "equivalent within ±margin" where the 90 % CI lies inside ±margin (two one-sided tests; a measure without a
+    margin, crossing time, is never equivalent); otherwise "undecided"."""
+    (low, high), (low90, high90) = test["ci"], test["ci90"]
+    if low > 0 or high < 0:
+        return "holds" if low > 0 else "fails"
+    return f"equivalent within ±{margin}" if margin and -margin < low90 and high90 < margin else "undecided"
+
+
+def seeds_to_settle(d: float, s_a: float, s_b: float) -> int | None:
+    """The fewest seeds per row at which Welch's two-sided test at ALPHA finds a true difference d with POWER, the two
+    rows' stds over seeds (ddof = 1) being s_a and s_b: its power from the noncentral t (scipy.stats.nct) at the
+    Welch-Satterthwaite degrees of freedom. None beyond MOST_SEEDS."""
+    n = np.arange(2, MOST_SEEDS + 1)
+    var = s_a ** 2 + s_b ** 2
+    df, ncp = var ** 2 * (n - 1) / (s_a ** 4 + s_b ** 4), abs(d) / np.sqrt(var / n)
+    t = stats.t.ppf(1 - ALPHA / 2, df)
+    enough = n[stats.nct.sf(t, df, ncp) + stats.nct.cdf(-t, df, ncp) >= POWER]
+    return int(enough[0]) if len(enough) else None
+
+
+def improvement(a, b, rng: np.random.Generator, resamples: int = paired.BOOTSTRAP) -> tuple[float, float, float]:
+    """P(A > B), the probability of improvement as rliable reports it (Agarwal et al., NeurIPS 2021): the chance that
+    a run (seed) of A beats a run of B, ties counting 1/2 (Mann-Whitney's U / (n_a n_b)), with its 95 % percentile
+    interval from the stratified bootstrap: each row's runs resampled on their own within each task (here one: a
+    claim is one scenario). a, b: the seeds' values, + better."""
+    a, b = np.asarray(a), np.asarray(b)
+    prob = lambda x, y: (np.sign(x[..., :, None] - y[..., None, :]) + 1).mean(axis=(-2, -1)) / 2  # noqa: E731
+    boot = prob(a[rng.integers(len(a), size=(resamples, len(a)))], b[rng.integers(len(b), size=(resamples, len(b)))])
+    return float(prob(a, b)), *map(float, np.percentile(boot, [2.5, 97.5]))
 
 
 def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
-    """Each claim of CLAIMS with the data behind its verdict: the paper's two values, both rows' means over seeds at
-    the default budget and their difference, seed `seed`'s values at `budget` and their difference, the spread of the
-    difference (std over seeds at the default budget, ddof = 0, of each row, added in quadrature; it stands in for the
-    unknown spread at `budget`), each budget's verdict and the combined one. Differences are signed so that + is the
-    paper's order."""
-    out = []
+    """Each claim of CLAIMS with its tests at the default budget, over whatever seeds each row has: both rows' seeds
+    (values, + better) and means; `welch`, `verdict` and, if undecided, `seeds_to_settle` at the rows' observed
+    spread; the wins of A over the seeds both rows have, paired by seed number (a seed's rows met the same cases),
+    with the exact sign-flip test of those seeds' differences (exercises.paired.sign_flip); `improvement`. At
+    `budget`, seed `seed` alone and no verdict: both values, their difference and the cases only A / only B arrives
+    in (exercises.paired.paired). Differences are signed so that + is the paper's order."""
+    out, rng = [], np.random.default_rng(0)
     for scenario, a, b, key in CLAIMS:
         ref = PAPER[scenario]
         better, column = (1, 0) if key == "success_rate" else (-1, 2)  # a shorter crossing is better
         if b in ref:  # the paper's order: whichever of the two it has ahead
             a, b = (a, b) if better * (ref[a][column] - ref[b][column]) >= 0 else (b, a)
-        short = [over_seeds(found[DEFAULT][(scenario, algo)], key)[0] for algo in (a, b)]
-        long = [found[budget][(scenario, algo)][seed][key]["mean"] for algo in (a, b)]
-        spread = spread_of_difference(found, scenario, a, b, key)
-        verdicts = tuple(verdict(better * (x - y), spread) for x, y in (short, long))
-        out.append({"scenario": scenario, "a": a, "b": b, "key": key, "spread": spread, "verdicts": verdicts,
+        seeds = [{k: better * r[key]["mean"] for k, r in found[DEFAULT][(scenario, algo)].items()} for algo in (a, b)]
+        x, y = (np.array(list(s.values())) for s in seeds)
+        both = np.array([seeds[0][k] - seeds[1][k] for k in sorted(seeds[0].keys() & seeds[1].keys())])
+        test = welch(x, y)
+        said = verdict(test, MARGIN.get(key))
+        long = [found[budget][(scenario, algo)][seed] for algo in (a, b)]
+        out.append({"scenario": scenario, "a": a, "b": b, "key": key, "n": (len(x), len(y)),
                     "paper": (ref[a][column], ref[b][column]) if b in ref else None,
-                    "default": (*short, better * (short[0] - short[1])), "long": (*long, better * (long[0] - long[1])),
-                    "verdict": combined(*verdicts)})
+                    "means": (better * x.mean(), better * y.mean()), **test, "verdict": said,
+                    "settle": seeds_to_settle(test["d"], x.std(ddof=1), y.std(ddof=1)) if said == "undecided" else None,
+                    "wins": (int((both > 0).sum()), len(both)), "sign_flip": paired.sign_flip(both),
+                    "improvement": improvement(x, y, rng), "cases": paired.paired(*long, rng),
+                    "long": better * (long[0][key]["mean"] - long[1][key]["mean"])})
     return out
 
 
 def claims_block(found: dict) -> list[str]:
-    """RESULTS.md's table of the paper's claims, one per line: the paper's two values; at each budget the difference
-    (of the seeds' means at the default budget, of seed 0's at the paper's) ± BAND x the spread of the difference,
-    the two values and that budget's verdict; and the verdict of both (`verdict`, `combined`)."""
-    lines = ["| claim | the paper | 10^5, 3 seeds | 5 x 10^5, seed 0 | verdict |", "|---|---|---|---|---|"]
+    """RESULTS.md's table of the paper's claims, one per line (`claim_rows`): the paper's two values; at the default
+    budget both rows' means with their seeds (n), the difference with its 95 % CI, the verdict, the seeds per row
+    that would settle an undecided claim, A's wins per seed, the sign-flip p and P(A > B); at the paper's budget,
+    seed 0's difference and the cases only A / only B arrives in, with no verdict."""
+    lines = ["| claim | the paper | 10^5 steps: A vs B (seeds) | A - B [95 % CI] (Welch) | verdict | seeds per row to "
+             "settle | A ahead, seed by seed | sign-flip p over seeds | P(A > B) [95 % CI] | 5 x 10^5, seed 0: A - B; "
+             "only A / only B arrives |", "|---|---|---|---|---|---|---|---|---|---|"]
     for c in claim_rows(found):
         word, digits = ("succeeds more often than", 3) if c["key"] == "success_rate" else ("crosses sooner than", 1)
-        width = BAND * c["spread"]
-        cell = lambda x, y, d: f"{d:+.{digits}f} ± {width:.{digits}f} ({x:.{digits}f} vs {y:.{digits}f})"  # noqa: E731
         paper = "no such row (its thesis)" if c["paper"] is None else " vs ".join(f"{v:.{digits}f}" for v in c["paper"])
-        lines.append(f"| {c['scenario']}: {NAMES[c['a']]} {word} {NAMES[c['b']]} | {paper} | "
-                     f"{cell(*c['default'])}, {c['verdicts'][0]} | {cell(*c['long'])}, {c['verdicts'][1]} | "
-                     f"**{c['verdict']}** |")
+        means = " vs ".join(f"{m:.{digits}f} (n = {n})" for m, n in zip(c["means"], c["n"]))
+        settle = "-" if c["verdict"] != "undecided" else f"> {MOST_SEEDS:,}" if c["settle"] is None else c["settle"]
+        chance = "{:.2f} [{:.2f}, {:.2f}]".format(*c["improvement"])
+        interval = f"{c['d']:+.{digits}f} [{c['ci'][0]:+.{digits}f}, {c['ci'][1]:+.{digits}f}]"
+        lines.append(f"| {c['scenario']}: {NAMES[c['a']]} {word} {NAMES[c['b']]} | {paper} | {means} | {interval} | "
+                     f"**{c['verdict']}** | {settle} | {c['wins'][0]} / {c['wins'][1]} | {c['sign_flip']:.2g} | {chance} | "
+                     f"{c['long']:+.{digits}f}; {c['cases']['only_mine']} / {c['cases']['only_other']} |")
     return lines
 
 
@@ -495,7 +512,7 @@ def side_block(found: dict, algos, paper: bool = False) -> list[str]:
     for algo, rows in table.items():
         if not any(rows.values()):
             continue
-        seeds = " / ".join(sorted({n_text(r) for r in rows.values() if r}))
+        seeds = " / ".join(dict.fromkeys(n_text(r) for r in rows.values() if r))  # each scenario's, in column order
         cells = []
         for scenario in SCENARIOS:
             ref = PAPER[scenario].get(algo)

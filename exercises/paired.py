@@ -4,19 +4,21 @@
     python -m exercises.paired --scenario roundabout tarl tarl-consistent --runs results/runs runs/hw/runs
 
 Every row of Table 3 met the same test cases, seed by seed (results/runs/SCENARIO-ALGO-sK/eval.json: 10
-rounds x 200 cases, each case's outcome). Two rows are compared on them, for each seed and pooled:
+rounds x 200 cases, each case's outcome). Two rows are compared on them, for each seed and pooled, by
+`paired`, the project's one paired comparison:
 
   case by case   the cases where exactly one of the two arrives (the discordant pairs), split by how the
                  other failed: results/table3.md's "Case by case" counts, checked against it where it has them;
   McNemar        the exact test that the discordant pairs split 50:50 (no difference): two-sided
                  p = min(1, 2 P(X <= min(n_a, n_b))), X ~ Binomial(n_a + n_b, 1/2), with math.comb;
   bootstrap      the success difference (A - B, the mean over rounds of the per-round difference)
-                 with a 95 % interval from resampling the rounds, seeded (--seed).
+                 with a 95 % interval from resampling the cases within each round, seeded (--seed).
 
-Pooled: McNemar on the seeds' discordant pairs summed; the bootstrap resamples the rounds within each
-seed and averages the seeds. Both treat the seeds' models as fixed: three trained models say
-little about a fourth. Over seeds, the question a claim "A is better than B" asks: the seeds' mean
-differences and an exact sign-flip test on them (with n seeds its p is at least 2 / 2^n: 0.25 for 3).
+Pooled: McNemar on the seeds' discordant pairs summed; the bootstrap resamples each seed's cases and
+averages the seeds. Both treat the seeds' models as fixed: two trained policies on the same cases, not
+two methods; three trained models say little about a fourth. Over seeds, the question a claim "A is
+better than B" asks: the seeds' mean differences and an exact sign-flip test on them (with n seeds its p
+is at least 2 / 2^n: 0.25 for 3; RESULTS.md's claims table shows it beside its Welch test).
 Numpy only: no simulation.
 """
 from __future__ import annotations
@@ -25,6 +27,7 @@ import argparse
 import math
 import re
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -83,19 +86,54 @@ def sign_flip(x: np.ndarray) -> float:
     return float(np.mean(np.abs((signs * x).mean(axis=1)) >= abs(x.mean()) - 1e-12))
 
 
-def per_round_difference(a: dict, b: dict) -> np.ndarray:
-    """Per round, A's success rate minus B's, on the cases both played."""
-    pairs = matched(a, b)
-    rounds = sorted({x["round"] for x, _ in pairs})
-    return np.array([np.mean([(x["outcome"] == "arrival") - (y["outcome"] == "arrival") for x, y in pairs if x["round"] == r])
-                     for r in rounds])
+BOOTSTRAP = 10_000  # resamples of the paired interval
 
 
-def bootstrap(diffs: list[np.ndarray], n: int, rng: np.random.Generator) -> tuple[float, float, float]:
-    """(mean, 2.5 %, 97.5 %) of the mean over seeds of each seed's mean per-round difference, each seed's
-    rounds resampled with replacement n times."""
-    means = np.mean([d[rng.integers(len(d), size=(n, len(d)))].mean(axis=1) for d in diffs], axis=0)
-    return float(np.mean([d.mean() for d in diffs])), *map(float, np.percentile(means, [2.5, 97.5]))
+def paired(a: dict | list, b: dict | list, rng: np.random.Generator, resamples: int = BOOTSTRAP) -> dict:
+    """A against B on the test cases both played: the project's one paired comparison (this module's command,
+    bench/table3.py's paper's budget, bench/own_agent.py, bench/rollout_ceiling.py, bench/heldout.py).
+
+    a, b: a row of eval.json each (compare.read_row), or lists of them seed by seed, pooled. Returns n (cases),
+    mine and other (A's and B's success: the mean over rounds, then over seeds), counts (only A arrives: B collides
+    / times out; only B arrives: A collides / times out), only_mine, only_other, p (McNemar's exact test on those),
+    diff (mine - other) and low, high: its 95 % percentile interval, `resamples` resamples. ValueError if two rows
+    played no case in common or a case began differently (its start fingerprint): not the same test cases.
+
+    The resampling unit is the test case, within its round: each resample keeps every round's number of cases
+    (and, pooled, every seed's rounds), and averages as the difference does. Why the case: the cases are what the
+    comparison samples, the McNemar test beside the interval takes them as its independent draws, and the rounds
+    add no spread of their own: a round's cases are snapshots of its traffic 30 s apart, each with its own route
+    and departures, and the committed rows' per-round differences spread no more than their cases predict
+    (test_exercises.py checks it). Why not the round: a percentile bootstrap of 10 rounds is too narrow (about 0.8
+    times the t interval of the same 10 values), and of the rollout ceiling's 2 rounds meaningless. Either way
+    the trained policies are fixed: the interval says two policies differ on these cases, not two methods; the
+    seeds say that (bench/table3.py's claims). A round's cases resampled with replacement are its counts of the
+    three kinds of case (only B arrives, the same outcome, only A arrives) drawn from a multinomial: so they are
+    drawn here.
+    """
+    a, b = ([a], [b]) if isinstance(a, dict) else (a, b)
+    n, only, success, boot = 0, Counter(), [], []
+    for x, y in zip(a, b, strict=True):
+        pairs = matched(x, y)
+        differ = sum(c["start"] != d["start"] for c, d in pairs)
+        if differ or not pairs:
+            raise ValueError(f"{differ} of {len(pairs)} cases began differently (start fingerprints): not the same "
+                             "test cases" if pairs else "no case in common")
+        arrived = np.array([(c["outcome"] == "arrival", d["outcome"] == "arrival") for c, d in pairs], float)
+        rounds = np.array([c["round"] for c, _ in pairs])
+        each = [arrived[rounds == r] for r in np.unique(rounds)]
+        success.append([np.mean([np.mean(r[:, k]) for r in each]) for k in (0, 1)])  # as eval.json's mean
+        kinds = [np.bincount((r[:, 0] - r[:, 1] + 1).astype(int), minlength=3) for r in each]
+        draws = [rng.multinomial(k.sum(), k / k.sum(), size=resamples) for k in kinds]
+        boot.append(np.mean([(d[:, 2] - d[:, 0]) / k.sum() for d, k in zip(draws, kinds)], axis=0))
+        n, only = n + len(pairs), only + discordant(pairs)
+    mine, other = np.mean(success, axis=0)
+    counts = (only["arrival", "collision"], only["arrival", "timeout"], only["collision", "arrival"],
+              only["timeout", "arrival"])
+    low, high = np.percentile(np.mean(boot, axis=0), [2.5, 97.5])
+    return dict(n=n, mine=float(mine), other=float(other), counts=counts, only_mine=sum(counts[:2]),
+                only_other=sum(counts[2:]), p=mcnemar(sum(counts[:2]), sum(counts[2:])), diff=float(mine - other),
+                low=float(low), high=float(high))
 
 
 def table3_counts(path: Path, scenario: str, other: str) -> dict:
@@ -104,6 +142,15 @@ def table3_counts(path: Path, scenario: str, other: str) -> dict:
         return {}
     pattern = re.compile(rf"^\| 100,000 \| {scenario} \| (\d) \| {re.escape(LABELS[other])} \| (\d+) / (\d+) \| (\d+) / (\d+) \|$")
     return {int(m[1]): tuple(map(int, m.groups()[1:])) for line in path.read_text().splitlines() if (m := pattern.match(line))}
+
+
+def result_line(name: str, r: dict, rates: bool = True) -> str:
+    """One line of the command's table: a seed's (or, without `rates`, the pooled) result of `paired`."""
+    cases, mine, other = (str(r["n"]), f"{r['mine']:.3f}", f"{r['other']:.3f}") if rates else ("", "", "")
+    (a_collides, a_times_out), (b_collides, b_times_out) = r["counts"][2:], r["counts"][:2]
+    interval = f"{r['diff']:+.3f} [{r['low']:+.3f}, {r['high']:+.3f}]"
+    return (f"{name:<8}{cases:>7}{mine:>11}{other:>11}{f'{b_collides} / {b_times_out}':>32}"
+            f"{f'{a_collides} / {a_times_out}':>32}{p_text(r['p']):>12}{interval:>36}")
 
 
 def main(argv=None) -> int:
@@ -122,34 +169,26 @@ def main(argv=None) -> int:
     known = table3_counts(table, args.scenario, args.b) if args.a == "tarl" and not args.budget else {}
     print(f"{args.a} (A) against {args.b} (B) on the {args.scenario}, the same test cases seed by seed")
     print(f"{'seed':<8}{'cases':>7}{'success A':>11}{'success B':>11}{'only A arrives: B coll. / t.o.':>32}"
-          f"{'only B arrives: A coll. / t.o.':>32}{'McNemar p':>12}{'A - B, 95 % over rounds resampled':>36}")
-    total, diffs, agree = np.zeros(4, int), [], []
+          f"{'only B arrives: A coll. / t.o.':>32}{'McNemar p':>12}{'A - B, 95 % (cases resampled)':>36}")
+    rows, diffs, agree = [], [], []
     for seed in args.seeds:
         a, b = (find_row(args.runs, args.scenario, algo, seed, args.budget) for algo in (args.a, args.b))
         if a is None or b is None:
             print(f"{seed:<8}no eval.json has {args.a if a is None else args.b} for seed {seed} in {', '.join(map(str, args.runs))}")
             continue
-        pairs = matched(a, b)
-        if any(x["start"] != y["start"] for x, y in pairs):
-            print(f"{seed:<8}the two rows did not meet the same test cases (their start fingerprints differ)")
+        try:
+            r = paired(a, b, rng, args.bootstrap)
+        except ValueError as e:
+            print(f"{seed:<8}the two rows did not meet the same test cases: {e}")
             return 1
-        only = discordant(pairs)
-        counts = np.array([only["arrival", "collision"], only["arrival", "timeout"], only["collision", "arrival"],
-                           only["timeout", "arrival"]])
-        total += counts
-        diffs.append(per_round_difference(a, b))
-        mean, low, high = bootstrap(diffs[-1:], args.bootstrap, rng)
-        success = [np.mean([c[k]["outcome"] == "arrival" for c in pairs]) for k in (0, 1)]
-        print(f"{seed:<8}{len(pairs):>7}{success[0]:>11.3f}{success[1]:>11.3f}{f'{counts[0]} / {counts[1]}':>32}"
-              f"{f'{counts[2]} / {counts[3]}':>32}{p_text(mcnemar(counts[:2].sum(), counts[2:].sum())):>12}"
-              f"{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>36}")
+        print(result_line(str(seed), r))
+        rows.append((a, b))
+        diffs.append(r["diff"])
         if seed in known:
-            agree.append((seed, tuple(counts) == known[seed]))
-    if len(diffs) > 1:
-        mean, low, high = bootstrap(diffs, args.bootstrap, rng)
-        print(f"{'pooled':<8}{'':>7}{'':>11}{'':>11}{f'{total[0]} / {total[1]}':>32}{f'{total[2]} / {total[3]}':>32}"
-              f"{p_text(mcnemar(total[:2].sum(), total[2:].sum())):>12}{f'{mean:+.3f} [{low:+.3f}, {high:+.3f}]':>36}")
-        seeds = np.array([d.mean() for d in diffs])
+            agree.append((seed, r["counts"] == known[seed]))
+    if len(rows) > 1:
+        print(result_line("pooled", paired(*map(list, zip(*rows)), rng, args.bootstrap), rates=False))
+        seeds = np.array(diffs)
         print(f"over seeds: A - B = {' '.join(f'{d:+.3f}' for d in seeds)}, mean {seeds.mean():+.3f}, std {seeds.std(ddof=1):.3f}; "
               f"sign-flip test over the {len(seeds)} seeds p = {sign_flip(seeds):.2g} (the smallest possible: "
               f"{2 / 2 ** len(seeds):.2g})")
@@ -159,7 +198,7 @@ def main(argv=None) -> int:
               f"{', '.join(map(str, same)) or 'none'}" + "".join(f"; seed {s} DIFFERS" for s, ok in agree if not ok))
         if not all(ok for _, ok in agree):
             return 1
-    return 0 if diffs else 1
+    return 0 if rows else 1
 
 
 if __name__ == "__main__":
