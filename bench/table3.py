@@ -2,6 +2,7 @@
 
     python bench/table3.py                    # run or resume the grid, 2 cells side by side
     python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
+    python bench/table3.py --slurm --submit   # the unfinished cells as a Slurm array job (bench/slurm.py)
     python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
     python bench/table3.py --collect-only --readme   # and the tables in README.md and RESULTS.md
     python bench/table3.py --collect-only --extra runs/roundabout-sb3-sac-s0/eval.json   # your own agent's rows too
@@ -605,6 +606,10 @@ def collect(args, extra=(), out: Path | None = None) -> str:
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    if "--slurm" in argv:  # the same cells as a Slurm array job: bench/slurm.py takes the rest
+        import slurm
+        return slurm.main([a for a in argv if a != "--slurm"])
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -623,6 +628,9 @@ def main(argv=None):
     p.add_argument("--commit", action="store_true", help="git commit each finished cell's results")
     p.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell (2 threads "
                    "each unless --threads) and exit")
+    p.add_argument("--slurm", action="store_true", help="the unfinished cells as a Slurm array job: the rest of the "
+                   "command line goes to bench/slurm.py (--submit, --write FILE, --collect, --cpus-per-task, --time, "
+                   "--partition; its --help)")
     p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md and print it")
     p.add_argument("--extra", type=Path, nargs="+", default=[], metavar="PATH", help="with --collect-only: eval.json "
                    "files of policies outside the paper (bench/own_agent.py's), each row listed after Table 3's rows "
