@@ -35,7 +35,8 @@ from world import HUMAN_RANGES, sector_slots
 GROUPS = ("eq5", "deployed", "routes", "kinematics")
 INPUTS = {"A": ("eq5",), "B": ("eq5", "deployed"), "C": GROUPS}  # the three students' input sets
 SLOTS = 12  # Eq. (28): 6 sectors x 2 vehicles, in s_sur's order
-KINEMATICS = ("decel", "accel", "speed")  # the human's p[5:8]: |b_min|, a_max [m/s^2], crossing (game) speed [m/s]
+KINEMATICS = ("decel", "accel", "speed")  # the human's p[5:8]: |b_min|, a_max [m/s^2], crossing (game) speed [m/s],
+KINEMATICS_SCALE = np.array([HUMAN_RANGES[k][1] for k in KINEMATICS])  # each scaled by Table 1's upper bound
 
 
 def features(env: DrivingEnv, a) -> dict[str, np.ndarray]:
@@ -49,10 +50,9 @@ def features(env: DrivingEnv, a) -> dict[str, np.ndarray]:
     routes[SLOTS, env.routes.index(env.task["route"])] = 1.0  # the ego's own, last
     i, j, k, _, _ = sector_slots(env.xy, env.heading, env.others, cfg)
     for slot, h in zip(2 * i + j, (env.other_ids[n] for n in k)):
-        if h in env.humans:  # as drawn at its departure; scaled by Table 1's upper bounds
+        if h in env.humans:  # as drawn at its departure
             routes[slot, env.routes.index(sim.vehicle.getRouteID(h))] = 1.0
-            kinematics[slot] = env.humans[h][5:8] / [HUMAN_RANGES["decel"][1], HUMAN_RANGES["accel"][1],
-                                                     HUMAN_RANGES["speed"][1]]
+            kinematics[slot] = env.humans[h][5:8] / KINEMATICS_SCALE
     return {"eq5": timing_input(env.obs, a, cfg), "deployed": np.float32(deployed),
             "routes": np.float32(routes.ravel()), "kinematics": np.float32(kinematics.ravel())}
 
@@ -67,7 +67,7 @@ def advantages(returns: np.ndarray, cfg: RolloutConfig) -> np.ndarray:
 def regret(returns: np.ndarray, chosen, cfg: RolloutConfig) -> np.ndarray:
     """Per decision, the best candidate's mean return minus the chosen T's (0 for the teacher's own choice)."""
     mean = np.asarray(returns).mean(axis=-1)
-    idx = np.searchsorted(np.array(cfg.candidates), chosen)
+    idx = [cfg.candidates.index(int(T)) for T in np.asarray(chosen)]
     return mean.max(axis=1) - mean[np.arange(len(mean)), idx]
 
 
