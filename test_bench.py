@@ -408,3 +408,15 @@ def test_table3_reports_an_outside_row_that_met_other_cases_in_one_line(tmp_path
     assert "2000 cases; cases that began differently: odd (outside the paper) 1" in line
     assert line.endswith("; not compared, another number of cases: short (outside the paper) (200 cases)")
     assert "| short (outside the paper) (100,154 steps) | n = 1 |" in text
+
+
+def test_rollout_ceiling_plays_its_rounds_in_this_process_with_no_workers(tmp_path):
+    """--workers 0: the rounds are played here, on the env that loaded the policy (it once crashed with no env), on
+    seed 0's test cases, and nothing goes to results/."""
+    import rollout_ceiling
+    rollout_ceiling.main(["--scenarios", "intersection", "--timing", "rollout=2", "--rounds", "1", "--cases", "2",
+                          "--workers", "0", "--out", str(tmp_path)])
+    row = json.loads((tmp_path / "intersection-tarl-s0-rollout2.json").read_text())["rows"][0]
+    learned = rollout_ceiling.other_row("intersection", "learned")
+    assert [c["start"] for c in row["cases"]] == [c["start"] for c in learned["cases"][:2]]
+    assert "## intersection, --timing rollout=2" in (tmp_path / "summary.md").read_text()

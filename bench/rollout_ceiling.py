@@ -50,22 +50,25 @@ def other_row(scenario: str, timing: str) -> dict:
 
 
 def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, commit: bool, out: Path = OUT):
-    """Rounds 0..rounds-1 with the rollout timing, one at a time, each kept (and committed) as it finishes."""
+    """Rounds 0..rounds-1 with the rollout timing, one at a time, each kept (and committed) as it finishes: in
+    `workers` processes, or with none in this one, on the env that loaded the policy."""
     env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
     trainer = load_tarl(env, scenario)  # the shipped seed-0 policy
-    env.close()
+    if workers:  # the env is needed here only to play the rounds in this process
+        env.close()
     rows = [dict(algo="tarl", label=f"TARL, T {timing}", driver=experiment.timing_override(timing, trainer))]
     keep = out / f"{scenario}-{tag(timing)}"
     for r in range(rounds):
         if experiment.kept_round(keep, r, experiment.evaluation_key(env.cfg, rows, cases, 0)) is not None:
             continue
         print(f"{scenario}, {timing}: round {r + 1}/{rounds}", flush=True)
-        experiment.evaluate(env.cfg, rows, r + 1, cases, 0, workers, keep=keep)
+        experiment.evaluate(env.cfg, rows, r + 1, cases, 0, workers, env, keep=keep)
         if commit:
             from table3 import commit as git_commit  # bench/table3.py's: add and commit just these files
             git_commit([keep / f"round{r}.json"], f"rollout ceiling: TARL seed 0 on the {scenario}, --timing {timing}, "
                        f"round {r}")
-    result = experiment.evaluate(env.cfg, rows, rounds, cases, 0, workers, keep=keep)[0]
+    result = experiment.evaluate(env.cfg, rows, rounds, cases, 0, workers, env, keep=keep)[0]
+    env.close()
     path = out / f"{scenario}-tarl-s0-{tag(timing)}.json"
     path.write_text(json.dumps(dict(scenario=scenario, seed=0, world=experiment.world.WORLD_VERSION, machine=experiment.machine(),
                                     rows=[result])))
@@ -112,7 +115,7 @@ def main(argv=None):
     p.add_argument("--timing", default="rollout", help="rollout or rollout=T1,T2,... (rollout_timing.py)")
     p.add_argument("--rounds", type=int, default=2, help="rounds 0..R-1 of seed 0's test cases")
     p.add_argument("--cases", type=int, default=200, help="cases per round (Table 3: 200)")
-    p.add_argument("--workers", type=int, default=1, help="evaluation processes (each plays a round)")
+    p.add_argument("--workers", type=int, default=1, help="evaluation processes (each plays a round); 0: in this one")
     p.add_argument("--commit", action="store_true", help="git commit each finished round and the summary")
     p.add_argument("--report", action="store_true", help="only rewrite OUT/summary.md")
     p.add_argument("--out", type=Path, default=OUT, help="where the rounds, each scenario's eval.json and summary.md go")

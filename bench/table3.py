@@ -449,13 +449,28 @@ def improvement(a, b, rng: np.random.Generator, resamples: int = paired.BOOTSTRA
     return float(prob(a, b)), *map(float, np.percentile(boot, [2.5, 97.5]))
 
 
+def seed_test(a: dict, b: dict, margin: float | None, rng: np.random.Generator) -> dict:
+    """A against B over seeds, the test of a claim (claim_rows) and of an outside policy against a row
+    (bench/own_agent.py), a and b the seeds' values {seed: value, + better}: n (seeds of each) and means; `welch`'s d
+    with its 95 % and 90 % CIs; the `verdict`; if undecided, the seeds per row that would settle it
+    (`seeds_to_settle`, at the observed spread, None beyond MOST_SEEDS); A's wins over the seeds both have, paired by
+    seed (a seed's rows met the same cases), with the exact sign-flip p of their differences
+    (exercises.paired.sign_flip); `improvement`: P(A > B) with its 95 % interval."""
+    x, y = (np.array(list(seeds.values())) for seeds in (a, b))
+    both = np.array([a[k] - b[k] for k in sorted(a.keys() & b.keys())])
+    test = welch(x, y)
+    said = verdict(test, margin)
+    return {"n": (len(x), len(y)), "means": (x.mean(), y.mean()), **test, "verdict": said,
+            "settle": seeds_to_settle(test["d"], x.std(ddof=1), y.std(ddof=1)) if said == "undecided" else None,
+            "wins": (int((both > 0).sum()), len(both)), "sign_flip": paired.sign_flip(both),
+            "improvement": improvement(x, y, rng)}
+
+
 def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
-    """Each claim of CLAIMS with its tests at the default budget, over whatever seeds each row has: both rows' seeds
-    (values, + better) and means; `welch`, `verdict` and, if undecided, `seeds_to_settle` at the rows' observed
-    spread; the wins of A over the seeds both rows have, paired by seed number (a seed's rows met the same cases),
-    with the exact sign-flip test of those seeds' differences (exercises.paired.sign_flip); `improvement`. At
-    `budget`, seed `seed` alone and no verdict: both values, their difference and the cases only A / only B arrives
-    in (exercises.paired.paired). Differences are signed so that + is the paper's order."""
+    """Each claim of CLAIMS with its tests at the default budget, over whatever seeds each row has (`seed_test` of
+    both rows' seed values, + better; the means as measured). At `budget`, seed `seed` alone and no verdict: both
+    values, their difference and the cases only A / only B arrives in (exercises.paired.paired). Differences are
+    signed so that + is the paper's order."""
     out, rng = [], np.random.default_rng(0)
     for scenario, a, b, key in CLAIMS:
         ref = PAPER[scenario]
@@ -463,17 +478,11 @@ def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
         if b in ref:  # the paper's order: whichever of the two it has ahead
             a, b = (a, b) if better * (ref[a][column] - ref[b][column]) >= 0 else (b, a)
         seeds = [{k: better * r[key]["mean"] for k, r in found[DEFAULT][(scenario, algo)].items()} for algo in (a, b)]
-        x, y = (np.array(list(s.values())) for s in seeds)
-        both = np.array([seeds[0][k] - seeds[1][k] for k in sorted(seeds[0].keys() & seeds[1].keys())])
-        test = welch(x, y)
-        said = verdict(test, MARGIN.get(key))
+        test = seed_test(*seeds, MARGIN.get(key), rng)
         long = [found[budget][(scenario, algo)][seed] for algo in (a, b)]
-        out.append({"scenario": scenario, "a": a, "b": b, "key": key, "n": (len(x), len(y)),
-                    "paper": (ref[a][column], ref[b][column]) if b in ref else None,
-                    "means": (better * x.mean(), better * y.mean()), **test, "verdict": said,
-                    "settle": seeds_to_settle(test["d"], x.std(ddof=1), y.std(ddof=1)) if said == "undecided" else None,
-                    "wins": (int((both > 0).sum()), len(both)), "sign_flip": paired.sign_flip(both),
-                    "improvement": improvement(x, y, rng), "cases": paired.paired(*long, rng),
+        out.append({"scenario": scenario, "a": a, "b": b, "key": key,
+                    "paper": (ref[a][column], ref[b][column]) if b in ref else None, **test,
+                    "means": tuple(better * m for m in test["means"]), "cases": paired.paired(*long, rng),
                     "long": better * (long[0][key]["mean"] - long[1][key]["mean"])})
     return out
 
