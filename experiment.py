@@ -25,6 +25,7 @@ import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -276,6 +277,39 @@ def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: in
     return [summarize(row, [played[r][i] for r in range(rounds)], cfg, seed) for i, row in enumerate(rows)]
 
 
+class Beside:
+    """Rows evaluated beside training, each by `evaluate` in one worker process, driven from a thread of its own:
+    training keeps a core, the evaluation takes another. `start(row)` begins a row (Lattice-IDM at once, TARL's
+    step-1 model when step 1 ends), `results()` waits for them all; a row's rounds are kept in KEEP/beside-ALGO, so
+    an interrupted run plays only the rest. A round gives the same numbers wherever it runs, so the rows equal an
+    evaluation of all of them together."""
+
+    def __init__(self, cfg: EnvConfig, rounds: int, cases: int, seed: int, keep: Path, log=print):
+        self.cfg, self.rounds, self.cases, self.seed, self.keep, self.log = cfg, rounds, cases, seed, keep, log
+        self.threads, self.done, self.errors = {}, {}, {}
+
+    def start(self, row: dict):
+        self.threads[row["algo"]] = thread = threading.Thread(target=self._run, args=(row,), daemon=True)
+        thread.start()
+
+    def _run(self, row: dict):
+        name = row.get("label", row["algo"])
+        try:
+            self.done[row["algo"]] = evaluate(self.cfg, [row], self.rounds, self.cases, self.seed, 1,
+                                              log=lambda line: self.log(f"  beside training, {name}:{line}"),
+                                              keep=self.keep / f"beside-{row['algo']}")[0]
+        except BaseException as e:  # a worker that died (one line), or anything else: raised by results()
+            self.errors[row["algo"]] = e
+
+    def results(self) -> dict:
+        """{algo: its row's result} once every row started has finished; a row that failed ends the run in one line."""
+        for thread in self.threads.values():
+            thread.join()
+        for algo, e in self.errors.items():
+            raise SystemExit(f"{algo}, evaluated beside training: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
+        return self.done
+
+
 CASE_KEYS = ("round", "case", "start", "outcome", "crossing_time", "steps")  # of each case, in eval.json
 KEPT = (*CASE_KEYS, "beta", "T")  # of an episode: what summarize needs
 BRANCHING = ("decisions", "branch_steps", "wall_s")  # of a case played by a rollout timing (rollout_timing.py)
@@ -409,10 +443,11 @@ def parse_args(argv=None):
                    "ckpt.pt, policy.pt, eval.json (eval-rounds/ while evaluating)")
     p.add_argument("--load", type=Path, metavar="CKPT", help="evaluate this ckpt.pt or policy.pt instead of training")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
-    p.add_argument("--threads", type=int, default=min(2, os.cpu_count() or 1),
-                   help="torch threads for training; 1 when another busy process shares the cores")
+    p.add_argument("--threads", type=int, default=1, help="torch threads for training: 1, as the grid's cells train, "
+                   "gives the committed seed's numbers on its CPU type (float kernels differ with the threads)")
     p.add_argument("--workers", type=int, default=2, help="evaluation processes, one simulation each; 0: in this "
-                   "process (where a function swapped in by an exercise takes effect)")
+                   "process (where a function swapped in by an exercise takes effect). With 2 or more, a training run "
+                   "evaluates Lattice-IDM and its step-1 model beside it, one process each")
     p.add_argument("--eval-rows", choices=("all", "trained"), default="all", help="all: beside the --algo row, "
                    "TARL's step-1 model and Lattice-IDM on the same cases; trained: the --algo row alone")
     p.add_argument("--gui", action="store_true", help="watch in sumo-gui (needs --load unless --algo lattice-idm)")
@@ -502,6 +537,11 @@ def main(argv=None):
     code = subprocess.run(["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
                           capture_output=True, text=True).stdout.strip() or None  # the commit this run starts from
     env = DrivingEnv(cfg, gui=args.gui)
+    workers, keep = 0 if args.gui else args.workers, args.out / "eval-rounds"
+    planner = dict(algo="lattice-idm", label="Lattice-IDM", driver=Driver("planner"))
+    # training with workers to spare: one core trains, another evaluates the other rows meanwhile
+    beside = Beside(cfg, args.eval_rounds, args.eval_cases, args.seed, keep) if (
+        args.algo != "lattice-idm" and not args.load and args.eval_rows == "all" and workers >= 2) else None
     try:
         if args.algo != "lattice-idm":
             share = TrainConfig.sac_fraction if args.step_one is None else args.step_one / args.steps
@@ -510,6 +550,12 @@ def main(argv=None):
             if args.state:
                 trainer.load(args.state, resume=args.resume)
             if not args.load:
+                if beside is not None:
+                    beside.start(planner)
+                    if trainer.sac_actor is None:
+                        trainer.after_step_one = lambda: beside.start(trained_rows(trainer)[1])
+                    else:  # resumed after step 1
+                        beside.start(trained_rows(trainer)[1])
                 print(f"training {args.algo} on the {args.scenario} from step {trainer.step} to {args.steps} -> {args.out}")
                 try:
                     trainer.run()
@@ -521,14 +567,18 @@ def main(argv=None):
                 rows[0] = dict(rows[0], driver=timing_override(args.timing, trainer),
                                label=f"{ROWS[args.algo].label}, T {args.timing}")
         if args.algo == "lattice-idm" or args.eval_rows == "all":
-            rows.append(dict(algo="lattice-idm", label="Lattice-IDM", driver=Driver("planner")))
+            rows.append(planner)
         print(f"evaluating on the {args.scenario}: {args.eval_rounds} rounds x {args.eval_cases} test cases, the same "
               "cases for every model")
-        workers, keep = 0 if args.gui else args.workers, args.out / "eval-rounds"
         if workers:
             env.close()  # the workers run their own simulations
+        started = beside.threads if beside is not None else {}
         try:
-            results = evaluate(cfg, rows, args.eval_rounds, args.eval_cases, args.seed, workers, env, keep=keep)
+            here = [row for row in rows if row["algo"] not in started]
+            done = dict(zip((row["algo"] for row in here), evaluate(cfg, here, args.eval_rounds, args.eval_cases,
+                                                                     args.seed, workers, env, keep=keep)))
+            done.update(beside.results() if beside is not None else {})
+            results = [done[row["algo"]] for row in rows]
         except KeyboardInterrupt:
             trained_here = not args.load and args.algo != "lattice-idm"
             again = f"continue with --resume --out {args.out}" if trained_here else "run the same command again"

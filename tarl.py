@@ -495,6 +495,7 @@ class Trainer:
         self.plain = Driver("none", self.actor)
         self.step_one = round(tc.sac_fraction * tc.steps) if step_one else 0
         self.sac_actor: SAC | None = None  # the step-1 model, kept when step 1 ends
+        self.after_step_one = None  # called once step 1 has ended (experiment.py evaluates the step-1 model then)
         self.step, self.updates, self.episode = 0, {"actor": 0, "timing": 0}, dict(ret=0.0, betas=[])
         self.log = TrainLog(out, tc.steps, log)
 
@@ -509,6 +510,8 @@ class Trainer:
                     self.actor_loop(self.plain, "step1")
                 self.step_one, self.sac_actor = self.step, copy.deepcopy(self.actor)
                 self.save("sac.pt")
+                if self.after_step_one is not None:
+                    self.after_step_one()
             # step 2 alone first: the timing taker learns on the step-1 actor before anything is blended
             while self.timing_taker is not None and self.step < self.step_one + self.tc.timing_pretrain * self.tc.steps:
                 self.imagination_loop()

@@ -235,3 +235,17 @@ def test_step_one_sets_the_length_of_step_1_and_a_resumed_run_keeps_its_own(env,
     for algo, steps in (("sac", "400"), ("tarl-fixed-t", "100")):
         with pytest.raises(SystemExit):  # no step 1; a step 1 as long as the run
             experiment.parse_args(["--algo", algo, "--steps", steps, "--step-one", "100", "--out", str(tmp_path / "x")])
+
+
+def test_rows_evaluated_beside_training_are_the_rows_evaluated_together(tmp_path):
+    """With workers to spare, Lattice-IDM is evaluated while TARL trains and the step-1 model once step 1 ends, each
+    in a process of its own: every case comes out as when the finished run's three rows are evaluated together."""
+    cases = ["--scenario", "intersection", "--eval-rounds", "1", "--eval-cases", "2"]
+    experiment.main([*cases, "--steps", "300", "--step-one", "150", "--out", str(tmp_path / "run"), "--workers", "2"])
+    assert (tmp_path / "run" / "sac.pt").exists() and not (tmp_path / "run" / "eval-rounds").exists()
+    experiment.main([*cases, "--load", str(tmp_path / "run" / "policy.pt"), "--out", str(tmp_path / "again"),
+                     "--workers", "0"])
+    beside, together = (json.loads((tmp_path / d / "eval.json").read_text())["rows"] for d in ("run", "again"))
+    assert [r["algo"] for r in beside] == [r["algo"] for r in together] == ["tarl", "tarl-step1", "lattice-idm"]
+    for x, y in zip(beside, together):
+        assert x["cases"] == y["cases"] and x["success_rate"] == y["success_rate"]
