@@ -30,6 +30,13 @@ class Alternating:
         return np.array([2.0 if self.n % 2 else -3.0], np.float32)
 
 
+class Toward:
+    """An actor that accelerates toward 9 m/s, jerkily: it ends its episodes soon, and is never the planner."""
+
+    def act(self, obs, deterministic=False):
+        return np.array([2.0 if obs[6] * 16.0 < 9.0 else -3.0], np.float32)
+
+
 @pytest.fixture(scope="module")
 def cases():
     env = world.DrivingEnv(world.EnvConfig(scenario="roundabout"))
@@ -43,7 +50,7 @@ def test_every_branch_of_a_label_begins_with_the_recorded_action(cases, monkeypa
     """Per decision: a restore before each of the candidates x K branches and one back to the episode; the step after
     each is the recorded action blended by that branch's T (by the chosen T, back in the episode)."""
     env, recorded = cases
-    cfg = RolloutConfig(candidates=(1, 10), futures=2, hold=3)
+    cfg = RolloutConfig(candidates=(1, 10), futures=2, hold=10)
     teacher = distil.Teacher(Alternating(), cfg=cfg)
     restore, step, firsts, after = env.restore_state, env.step, [], [False]
 
@@ -169,23 +176,23 @@ def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
     assert st["results"]["A"]["regret"] < st["baseline"]["T = 2 always"]["regret"]
     student = distil.Student.load(tmp_path / "roundabout-s0" / "C-routes.pt")
     assert student.inputs == "C-routes" and student.mean.numel() == dims["eq5"] + 5 + 36
-
-
-def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):
-    env, recorded = cases
-    cfg = RolloutConfig(candidates=(1, 2, 10), futures=1, hold=3)
-    student = distil.Student("B", world.OBS_DIM + 1 + 5, cfg)
-    with torch.no_grad():
-        student.net[-1].weight.zero_()
-        student.net[-1].bias.copy_(torch.tensor([1.0, 0.0, -1.0]))  # always T = 1
-    teacher = distil.Teacher(Alternating(), cfg=cfg, student=student)
-    ep = experiment.rollout(env, teacher, {"case": recorded[1]})
-    labels = teacher.labels
-    assert labels and all(d["executed"] == 1 for d in labels) and ep["branch_steps"] > 0
-    assert [d["T"] for d in labels] == [best_candidate(cfg, d["returns"].mean(1)) for d in labels]  # the teacher's
-    assert set(ep["T"]) == {1, 2}  # the student's T = 1 at its decisions, held; the default elsewhere
     # the report: a student "evaluated" as TARL itself (its committed eval.json) ties TARL and does not pass
     (tmp_path / "roundabout-s0" / "eval-A.json").write_text((HERE / "results/runs/roundabout-tarl-s0/eval.json").read_text())
     text = distillation.report(__import__("argparse").Namespace(out=tmp_path, actor_seed=0))
     assert "| TARL | 2 | " in text and "| 0 / 0 | 1 |" in text
     assert "student A **does not pass**" in text and "student C-routes" in text
+
+
+def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):
+    env, recorded = cases
+    cfg = RolloutConfig(candidates=(1, 2), futures=1, hold=10)
+    student = distil.Student("B", world.OBS_DIM + 1 + 5, cfg)
+    with torch.no_grad():
+        student.net[-1].weight.zero_()
+        student.net[-1].bias.copy_(torch.tensor([1.0, 0.0]))  # always T = 1
+    teacher = distil.Teacher(Toward(), cfg=cfg, student=student)
+    ep = experiment.rollout(env, teacher, {"case": recorded[1]})
+    labels = teacher.labels
+    assert labels and all(d["executed"] == 1 for d in labels) and ep["branch_steps"] > 0
+    assert [d["T"] for d in labels] == [best_candidate(cfg, d["returns"].mean(1)) for d in labels]  # the teacher's
+    assert set(ep["T"]) == {1, 2}  # the student's T = 1 at its decisions, held; the default elsewhere
