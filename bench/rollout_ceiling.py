@@ -67,11 +67,12 @@ def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, comm
             from table3 import commit as git_commit  # bench/table3.py's: add and commit just these files
             git_commit([keep / f"round{r}.json"], f"rollout ceiling: TARL seed 0 on the {scenario}, --timing {timing}, "
                        f"round {r}")
-    result = experiment.evaluate(env.cfg, rows, rounds, cases, 0, workers, env, keep=keep)[0]
+    # every round is kept by now: this gathers them (quietly: nothing was interrupted)
+    result = experiment.evaluate(env.cfg, rows, rounds, cases, 0, workers, env, log=lambda line: None, keep=keep)[0]
     env.close()
     path = out / f"{scenario}-tarl-s0-{tag(timing)}.json"
-    path.write_text(json.dumps(dict(scenario=scenario, seed=0, world=experiment.world.WORLD_VERSION, machine=experiment.machine(),
-                                    rows=[result])))
+    path.write_text(json.dumps(dict(scenario=scenario, seed=0, world=experiment.world.WORLD_VERSION,
+                                    machine=experiment.machine(), rows=[result])))
     return path
 
 
