@@ -109,6 +109,12 @@ def timing_override(spec: str, trainer) -> Driver:
                   fixed_T=int(value) if name == "fixed" else 2, cap=int(value) if name == "cap" else None)
 
 
+def timing_name(spec: str) -> str:
+    """--timing SPEC as a row's label shows it: a student by its file's name (distilled=.../A.pt: distilled A)."""
+    name, _, value = spec.partition("=")
+    return f"distilled {Path(value).stem}" if name == "distilled" else spec
+
+
 def load_checkpoint(path: Path, scenario: str, algo: str) -> dict:
     """A checkpoint of --scenario, --algo as plain tensors and dicts (a stranger's pickle never runs)."""
     if not Path(path).is_file():
@@ -565,7 +571,7 @@ def main(argv=None):
             rows = trained_rows(trainer)[:1 if args.eval_rows == "trained" else None]
             if args.timing:
                 rows[0] = dict(rows[0], driver=timing_override(args.timing, trainer),
-                               label=f"{ROWS[args.algo].label}, T {args.timing}")
+                               label=f"{ROWS[args.algo].label}, T {timing_name(args.timing)}")
         if args.algo == "lattice-idm" or args.eval_rows == "all":
             rows.append(planner)
         print(f"evaluating on the {args.scenario}: {args.eval_rounds} rounds x {args.eval_cases} test cases, the same "
