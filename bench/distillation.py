@@ -119,7 +119,7 @@ def label(args):
     for k in range(args.first_chunk, args.first_chunk + -(-args.cases // args.chunk)):
         file, want = keep / f"chunk{k:03d}.npz", meta(args.scenario, args.actor_seed, k, args.chunk, student)
         if file.exists():
-            if {k: v for k, v in read_chunk(file)[0].items() if k in want} != want:
+            if {key: value for key, value in read_chunk(file)[0].items() if key in want} != want:
                 raise SystemExit(f"{file} was labelled with other settings; move it away to relabel")
             continue
         todo.append((k, file, want))
@@ -133,9 +133,10 @@ def label(args):
     t0 = time.time()
     try:
         for n, (k, file, want) in enumerate(todo, 1):
+            started = time.time()
             arrays = label_chunk(env, teacher, args.scenario, args.actor_seed, k, args.chunk,
                                  log=lambda s: print(s, flush=True))
-            want.update(machine=experiment.machine(), minutes=round((time.time() - t0) / 60 / n, 2))
+            want.update(machine=experiment.machine(), minutes=round((time.time() - started) / 60, 2))  # this chunk's
             part = file.with_suffix(".part.npz")
             np.savez_compressed(part, meta=json.dumps(want), **arrays)
             part.rename(file)  # whole or absent: an interrupted write leaves no chunk
