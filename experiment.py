@@ -111,8 +111,7 @@ def timing_override(spec: str, trainer) -> Driver:
 
 def timing_name(spec: str) -> str:
     """--timing SPEC as a row's label shows it: a student by its file's name (distilled=.../A.pt: distilled A)."""
-    name, _, value = spec.partition("=")
-    return f"distilled {Path(value).stem}" if name == "distilled" else spec
+    return f"distilled {Path(spec[10:]).stem}" if spec.startswith("distilled=") else spec
 
 
 def load_checkpoint(path: Path, scenario: str, algo: str) -> dict:
@@ -284,11 +283,9 @@ def evaluate(cfg: EnvConfig, rows: list[dict], rounds: int, cases: int, seed: in
 
 
 class Beside:
-    """Rows evaluated beside training, each by `evaluate` in one worker process, driven from a thread of its own:
-    training keeps a core, the evaluation takes another. `start(row)` begins a row (Lattice-IDM at once, TARL's
-    step-1 model when step 1 ends), `results()` waits for them all; a row's rounds are kept in KEEP/beside-ALGO, so
-    an interrupted run plays only the rest. A round gives the same numbers wherever it runs, so the rows equal an
-    evaluation of all of them together."""
+    """Rows evaluated beside training, each by `evaluate` in one worker process driven from a thread, its rounds kept
+    in KEEP/beside-ALGO: start(row) begins one, results() waits for all. A round gives the same numbers wherever it
+    runs, so the rows equal an evaluation of all of them together."""
 
     def __init__(self, cfg: EnvConfig, rounds: int, cases: int, seed: int, keep: Path, log=print):
         self.cfg, self.rounds, self.cases, self.seed, self.keep, self.log = cfg, rounds, cases, seed, keep, log
@@ -299,10 +296,9 @@ class Beside:
         thread.start()
 
     def _run(self, row: dict):
-        name = row.get("label", row["algo"])
         try:
             self.done[row["algo"]] = evaluate(self.cfg, [row], self.rounds, self.cases, self.seed, 1,
-                                              log=lambda line: self.log(f"  beside training, {name}:{line}"),
+                                              log=lambda line: self.log(f"  beside training, {row['label']}:{line}"),
                                               keep=self.keep / f"beside-{row['algo']}")[0]
         except BaseException as e:  # a worker that died (one line), or anything else: raised by results()
             self.errors[row["algo"]] = e
@@ -545,9 +541,8 @@ def main(argv=None):
     env = DrivingEnv(cfg, gui=args.gui)
     workers, keep = 0 if args.gui else args.workers, args.out / "eval-rounds"
     planner = dict(algo="lattice-idm", label="Lattice-IDM", driver=Driver("planner"))
-    # training with workers to spare: one core trains, another evaluates the other rows meanwhile
-    beside = Beside(cfg, args.eval_rounds, args.eval_cases, args.seed, keep) if (
-        args.algo != "lattice-idm" and not args.load and args.eval_rows == "all" and workers >= 2) else None
+    beside = Beside(cfg, args.eval_rounds, args.eval_cases, args.seed, keep)  # one core trains, one evaluates
+    spare = args.algo != "lattice-idm" and not args.load and args.eval_rows == "all" and workers >= 2
     try:
         if args.algo != "lattice-idm":
             share = TrainConfig.sac_fraction if args.step_one is None else args.step_one / args.steps
@@ -556,7 +551,7 @@ def main(argv=None):
             if args.state:
                 trainer.load(args.state, resume=args.resume)
             if not args.load:
-                if beside is not None:
+                if spare:
                     beside.start(planner)
                     if trainer.sac_actor is None:
                         trainer.after_step_one = lambda: beside.start(trained_rows(trainer)[1])
@@ -578,12 +573,11 @@ def main(argv=None):
               "cases for every model")
         if workers:
             env.close()  # the workers run their own simulations
-        started = beside.threads if beside is not None else {}
         try:
-            here = [row for row in rows if row["algo"] not in started]
+            here = [row for row in rows if row["algo"] not in beside.threads]
             done = dict(zip((row["algo"] for row in here), evaluate(cfg, here, args.eval_rounds, args.eval_cases,
                                                                      args.seed, workers, env, keep=keep)))
-            done.update(beside.results() if beside is not None else {})
+            done.update(beside.results())
             results = [done[row["algo"]] for row in rows]
         except KeyboardInterrupt:
             trained_here = not args.load and args.algo != "lattice-idm"
