@@ -30,6 +30,8 @@ def run(rev: str, folder: Path) -> dict:
     clone = folder / rev
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
     subprocess.run(["git", "-C", str(clone), "checkout", "-q", rev], check=True)
+    rev = subprocess.run(["git", "-C", str(clone), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                         check=True).stdout.strip()  # HEAD as the commit it was
     load, t0 = os.getloadavg()[0], time.time()
     print(f"{rev}: python tarl.py --scenario roundabout (load {load:.1f})", flush=True)
     done = subprocess.run([sys.executable, "tarl.py", "--scenario", "roundabout"], cwd=clone)
