@@ -160,8 +160,8 @@ def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
     keep = distillation.folder("roundabout", 0, tmp_path)
     keep.mkdir(parents=True)
     dims = dict(eq5=world.OBS_DIM + 1, deployed=5, routes=13 * 12, kinematics=36)
-    for k in range(5):
-        n = 40
+
+    def write(keep, k, n=40):
         x = {g: rng.random((n, d)).astype(np.float32) for g, d in dims.items()}
         returns = rng.normal(50.0, 1.0, (n, 4, 3)).astype(np.float32)
         returns[:, 0] += np.where(x["eq5"][:, :1] > 0.5, 20.0, -20.0)  # T = 1 pays where the first input is high
@@ -169,6 +169,8 @@ def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
         meta = dict(scenario="roundabout", actor_seed=0, chunk=k)
         np.savez_compressed(keep / f"chunk{k:03d}.npz", meta=__import__("json").dumps(meta), returns=returns, T=T,
                             case=np.arange(n) // 4, **x)
+    for k in range(5):
+        write(keep, k)
     distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "C-routes"])
     st = __import__("json").loads((tmp_path / "roundabout-s0" / "students.json").read_text())
     assert st["held_out_decisions"] == 40 and st["train_chunks"] == [0, 1, 2, 3]
@@ -181,6 +183,14 @@ def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
     text = distillation.report(__import__("argparse").Namespace(out=tmp_path, actor_seed=0))
     assert "| TARL | 2 | " in text and "| 0 / 0 | 1 |" in text
     assert "student A **does not pass**" in text and "student C-routes" in text
+    # a DAgger round: the states student A drove to join the labels, and its students go apart
+    (dagger := distillation.folder("roundabout", 0, tmp_path, "A")).mkdir(parents=True)
+    write(dagger, 5)
+    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "--dagger", "A"])
+    st = __import__("json").loads((tmp_path / "roundabout-s0-dagger" / "students.json").read_text())
+    assert st["train_chunks"] == [0, 1, 2, 3, 5] and st["held_out_decisions"] == 40
+    text = distillation.report(__import__("argparse").Namespace(out=tmp_path, actor_seed=0))
+    assert "## roundabout, actor seed 0, after one DAgger round" in text
 
 
 def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):

@@ -78,6 +78,11 @@ def folder(scenario: str, actor_seed: int, out: Path = OUT, student: str | None 
     return out / "labels" / (f"{scenario}-s{actor_seed}" + (f"-dagger-{student}" if student else ""))
 
 
+def students_dir(args) -> Path:
+    """Where a scenario's students, their scores and evaluations go; those trained with DAgger labels apart."""
+    return args.out / (f"{args.scenario}-s{args.actor_seed}" + "-dagger" * bool(args.dagger))
+
+
 def meta(scenario: str, actor_seed: int, chunk: int, cases: int, student: distil.Student | None = None) -> dict:
     """What a chunk was labelled with (as JSON keeps it): a chunk with other meta is not resumed."""
     m = dict(scenario=scenario, actor_seed=actor_seed, chunk=chunk, cases=cases, seed=label_seed(chunk),
@@ -191,7 +196,7 @@ def train(args):
     train_chunks = sorted({int(c) for c in data["chunk"][~held]})
     adv = distil.advantages(data["returns"], cfg)
     test = {k: v[held] for k, v in data.items()}
-    out = args.out / (f"{args.scenario}-s{args.actor_seed}" + "-dagger" * bool(args.dagger))
+    out = students_dir(args)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
 
@@ -227,14 +232,14 @@ def train(args):
 
 
 def evaluate(args):
-    out = args.out / f"{args.scenario}-s{args.actor_seed}"
+    out = students_dir(args)
     for inputs in args.students:
         student, dst = out / f"{inputs}.pt", out / f"eval-{inputs}.json"
         if not student.exists():
             raise SystemExit(f"no student {student}: run `train` first")
         if dst.exists():
             continue
-        work = ROOT / "runs" / "distil" / f"{args.scenario}-s{args.actor_seed}-{inputs}"
+        work = ROOT / "runs" / "distil" / f"{out.name}-{inputs}"
         cmd = [sys.executable, str(ROOT / "tarl.py"), "--scenario", args.scenario, "--seed", str(args.actor_seed),
                "--load", str(policy_path(args.scenario, args.actor_seed)), "--timing", f"distilled={student}",
                "--eval-rows", "trained", "--threads", "1", "--workers", str(args.workers), "--out", str(work)]
@@ -266,12 +271,12 @@ def report(args) -> str:
              "return (Eq. (31), to the episode's end) a choice loses per decision against the teacher's best "
              "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
              ""]
-    for scenario in SCENARIOS:
-        out = args.out / f"{scenario}-s{args.actor_seed}"
+    for scenario, dagger in ((s, d) for s in SCENARIOS for d in ("", "-dagger")):
+        out = args.out / f"{scenario}-s{args.actor_seed}{dagger}"
         if not (out / "students.json").exists():
             continue
         st = json.loads((out / "students.json").read_text())
-        lines += [f"## {scenario}, actor seed {args.actor_seed}", "",
+        lines += [f"## {scenario}, actor seed {args.actor_seed}" + (", after one DAgger round" if dagger else ""), "",
                   f"{st['train_decisions']} training and {st['held_out_decisions']} held-out decisions "
                   f"(chunks {', '.join(map(str, st['train_chunks']))} train).", "",
                   f"Decisive: the {st['decisive_decisions']} held-out decisions where some T beats T = 2 by at least "
@@ -332,8 +337,9 @@ def main(argv=None):
     for name in ("train", "evaluate"):
         sub.choices[name].add_argument("--students", nargs="+", default=list(distil.INPUTS),
                                        help="input sets: A, B, C, or one less a group (C-routes)")
-    sub.choices["train"].add_argument("--dagger", nargs="+", default=[], metavar="STUDENT",
-                                      help="also the labels of the states these students drove to (label --student)")
+        sub.choices[name].add_argument("--dagger", nargs="+", default=[], metavar="STUDENT",
+                                       help="also the labels of the states these students drove to (label --student);"
+                                            " the students go to SCENARIO-sSEED-dagger")
     sub.choices["evaluate"].add_argument("--workers", type=int, default=1, help="evaluation processes")
     sub.choices["evaluate"].add_argument("--commit", action="store_true", help="git commit each student's eval.json")
     args = p.parse_args(argv)
