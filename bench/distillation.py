@@ -150,7 +150,8 @@ def label(args):
                   flush=True)
             if args.commit:
                 from table3 import commit  # bench/table3.py's: add and commit just these files
-                commit([file], f"distil labels: {args.scenario}, actor seed {args.actor_seed}, chunk {k}")
+                commit([file], f"distil labels: {args.scenario}, actor seed {args.actor_seed}, chunk {k}"
+                                     + (f" (DAgger: student {student.inputs} drives)" if student else ""))
     finally:
         env.close()
 
