@@ -250,8 +250,8 @@ def evaluate(args):
         dst.write_text((work / "eval.json").read_text())
         if args.commit:
             from table3 import commit
-            commit([dst], f"distil: student {inputs} of the {args.scenario} (actor seed {args.actor_seed}) on the "
-                          "test cases")
+            commit([dst], f"distil: student {inputs} of the {args.scenario} (actor seed {args.actor_seed}"
+                          + ", after DAgger" * bool(args.dagger) + ") on the test cases")
 
 
 PAIRED = (("TARL", "runs/{s}-tarl-s{k}/eval.json", "tarl"), ("tarl-fixed-t", "runs/{s}-tarl-fixed-t-s{k}/eval.json",
