@@ -21,6 +21,11 @@ against the number of training cases. The students go beside it as A.pt, B.pt, C
 evaluate: each student times the same actor on the seed's 10 x 200 test cases (`tarl.py --load ... --timing
 distilled=...`, resumable), its eval.json kept as results/distil/SCENARIO-sSEED/eval-STUDENT.json.
 
+DAgger (one round, as run for the roundabout): a student drives new cases while the teacher labels its decisions
+(`label --student results/distil/roundabout-s0/B.pt --first-chunk 50 --cases 300`, into labels/...-dagger-B), then
+`train --dagger B` fits every student on both sets and `evaluate --dagger B` plays them; both use
+results/distil/SCENARIO-sSEED-dagger.
+
 report: the verdict registered before any student was evaluated (issue 46): a student passes if it beats the better
 of the trained ablation rows tarl-fixed-t and tarl-random-t of the seed (the one with more successes on these cases)
 on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside it, each student against TARL, TARL's actor re-timed
