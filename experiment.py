@@ -111,7 +111,7 @@ def timing_override(spec: str, trainer) -> Driver:
 
 def timing_name(spec: str) -> str:
     """--timing SPEC as a row's label shows it: a student by its file's name (distilled=.../A.pt: distilled A)."""
-    return f"distilled {Path(spec[10:]).stem}" if spec.startswith("distilled=") else spec
+    return f"distilled {Path(spec.removeprefix('distilled=')).stem}" if spec.startswith("distilled=") else spec
 
 
 def load_checkpoint(path: Path, scenario: str, algo: str) -> dict:

@@ -83,9 +83,9 @@ def folder(scenario: str, actor_seed: int, out: Path = OUT, student: str | None 
     return out / "labels" / (f"{scenario}-s{actor_seed}" + (f"-dagger-{student}" if student else ""))
 
 
-def students_dir(args) -> Path:
+def students_dir(out: Path, scenario: str, actor_seed: int, dagger: bool) -> Path:
     """Where a scenario's students, their scores and evaluations go; those trained with DAgger labels apart."""
-    return args.out / (f"{args.scenario}-s{args.actor_seed}" + "-dagger" * bool(args.dagger))
+    return out / (f"{scenario}-s{actor_seed}" + "-dagger" * bool(dagger))
 
 
 def meta(scenario: str, actor_seed: int, chunk: int, cases: int, student: distil.Student | None = None) -> dict:
@@ -202,7 +202,7 @@ def train(args):
     train_chunks = sorted({int(c) for c in data["chunk"][~held]})
     adv = distil.advantages(data["returns"], cfg)
     test = {k: v[held] for k, v in data.items()}
-    out = students_dir(args)
+    out = students_dir(args.out, args.scenario, args.actor_seed, args.dagger)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(1)
 
@@ -238,7 +238,7 @@ def train(args):
 
 
 def evaluate(args):
-    out = students_dir(args)
+    out = students_dir(args.out, args.scenario, args.actor_seed, args.dagger)
     for inputs in args.students:
         student, dst = out / f"{inputs}.pt", out / f"eval-{inputs}.json"
         if not student.exists():
@@ -277,8 +277,8 @@ def report(args) -> str:
              "return (Eq. (31), to the episode's end) a choice loses per decision against the teacher's best "
              "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
              ""]
-    for scenario, dagger in ((s, d) for s in SCENARIOS for d in ("", "-dagger")):
-        out = args.out / f"{scenario}-s{args.actor_seed}{dagger}"
+    for scenario, dagger in ((s, d) for s in SCENARIOS for d in (False, True)):
+        out = students_dir(args.out, scenario, args.actor_seed, dagger)
         if not (out / "students.json").exists():
             continue
         st = json.loads((out / "students.json").read_text())
