@@ -1,9 +1,12 @@
 """bench/slurm.py, Table 3's grid as a Slurm array job, on a real Slurm: tiny cells run, a cancelled task and one
 warned of its time limit resume from their checkpoints, bad input is one line. The tests that need Slurm run wherever
-sbatch is on PATH; without it they fail, never skip: .ci/run installs and starts a single-node Slurm (the README,
-Tests, says how on another machine)."""
+sbatch is on PATH; without it they fail, never skip. Where no controller answers (Slurm installed, not running: a
+fresh machine, CI), they start a single-node Slurm of their own for the session and stop it by its pids."""
+import getpass
+import os
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import time
@@ -19,11 +22,74 @@ import slurm  # noqa: E402
 CELLS = ["--algos", "sac", "--seeds", "0", "--steps", "3000", "--rounds", "1", "--cases", "2"]
 
 
-@pytest.fixture
-def cluster():
-    """Slurm's commands, else a failure; the array jobs a test submits are cancelled after it."""
+# A cluster of this one machine: auth/none and cred/none fit a single node; the project's job files depend on none of
+# this (a real cluster has munge, its own partitions and limits).
+SLURM_CONF = """ClusterName=tarl-test
+SlurmctldHost={host}
+SlurmUser={user}
+SlurmctldPidFile={d}/slurmctld.pid
+SlurmdPidFile={d}/slurmd.pid
+SlurmdSpoolDir={d}/slurmd
+StateSaveLocation={d}/slurmctld
+ProctrackType=proctrack/linuxproc
+TaskPlugin=task/none
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core
+ReturnToService=2
+AuthType=auth/none
+CredType=cred/none
+JobAcctGatherType=jobacct_gather/none
+NodeName={host} CPUs={cpus} State=UNKNOWN
+PartitionName=debug Nodes={host} Default=YES MaxTime=INFINITE State=UP
+"""
+
+
+def answers() -> bool:
+    """Does a Slurm controller answer, with an idle or busy node?"""
+    return subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True).stdout.strip() != ""
+
+
+@pytest.fixture(scope="session")
+def slurm_up(tmp_path_factory):
+    """The cluster that answers, else a single-node Slurm started here for the session (SLURM_CONF points every
+    Slurm command at it) and stopped by its daemons' pids; no sbatch on PATH is a failure."""
     if shutil.which("sbatch") is None:
-        pytest.fail("no sbatch on PATH: .ci/run installs and starts a single-node Slurm (README, Tests)")
+        pytest.fail("no sbatch on PATH: install Slurm (Debian: apt-get install slurm-wlm), README, Tests")
+    if answers():
+        yield
+        return
+    d = tmp_path_factory.mktemp("slurm")
+    (d / "slurmd").mkdir(), (d / "slurmctld").mkdir()
+    conf = d / "slurm.conf"
+    conf.write_text(SLURM_CONF.format(host=socket.gethostname().split(".")[0], user=getpass.getuser(), d=d,
+                                      cpus=os.cpu_count()))
+    os.environ["SLURM_CONF"] = str(conf)  # sbatch, sinfo, scontrol and the tasks read it
+    daemons = [subprocess.Popen([daemon, "-D", "-f", str(conf)], stdout=open(d / f"{daemon}.log", "w"),
+                                stderr=subprocess.STDOUT) for daemon in ("slurmctld", "slurmd")]
+    try:
+        deadline = time.time() + 30  # up within seconds
+        while not answers() and time.time() < deadline and all(p.poll() is None for p in daemons):
+            time.sleep(1)
+        if not answers():
+            logs = {n: (d / f"{n}.log").read_text().strip().splitlines() for n in ("slurmctld", "slurmd")}
+            pytest.fail("a single-node Slurm did not start: " + "; ".join(
+                f"{n}: {lines[-1] if lines else 'no output'}" for n, lines in logs.items()))
+        yield
+    finally:
+        for p in daemons:  # SIGKILL too: slurmd waiting for its controller ignores SIGTERM
+            p.terminate()
+        for p in daemons:
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        os.environ.pop("SLURM_CONF")
+
+
+@pytest.fixture
+def cluster(slurm_up):
+    """A running Slurm; the array jobs a test submits are cancelled after it."""
     jobs = []
     yield jobs
     if jobs:
