@@ -26,10 +26,11 @@ DAgger (one round, as run for the roundabout): a student drives new cases while 
 `train --dagger B` fits every student on both sets and `evaluate --dagger B` plays them; both use
 results/distil/SCENARIO-sSEED-dagger.
 
-report: the verdict registered before any student was evaluated (issue 46): a student passes if it beats the better
-of the trained ablation rows tarl-fixed-t and tarl-random-t of the seed (the one with more successes on these cases)
-on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside it, each student against TARL, TARL's actor re-timed
-with T = 2 and a random T (results/retime) and the teacher on its 400 cases (results/rollout).
+report, for every scenario and actor seed with students: the verdict registered before any student was evaluated
+(issue 46): a student passes if it beats the better of the trained ablation rows tarl-fixed-t and tarl-random-t of
+the seed (the one with more successes on these cases) on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside
+it, each student against TARL, TARL's actor re-timed with T = 2 and a random T (results/retime) and the teacher on
+its 400 cases (results/rollout).
 """
 from __future__ import annotations
 
@@ -277,12 +278,13 @@ def report(args) -> str:
              "return (Eq. (31), to the episode's end) a choice loses per decision against the teacher's best "
              "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
              ""]
-    for scenario, dagger in ((s, d) for s in SCENARIOS for d in (False, True)):
-        out = students_dir(args.out, scenario, args.actor_seed, dagger)
+    seeds = sorted({int(m[1]) for d in args.out.glob("*-s*") if (m := re.fullmatch(r"[a-z]+-s(\d+)(-dagger)?", d.name))})
+    for scenario, seed, dagger in ((s, k, d) for s in SCENARIOS for k in seeds for d in (False, True)):
+        out = students_dir(args.out, scenario, seed, dagger)
         if not (out / "students.json").exists():
             continue
         st = json.loads((out / "students.json").read_text())
-        lines += [f"## {scenario}, actor seed {args.actor_seed}" + (", after one DAgger round" if dagger else ""), "",
+        lines += [f"## {scenario}, actor seed {seed}" + (", after one DAgger round" if dagger else ""), "",
                   f"{st['train_decisions']} training and {st['held_out_decisions']} held-out decisions "
                   f"(chunks {', '.join(map(str, st['train_chunks']))} train).", "",
                   f"Decisive: the {st['decisive_decisions']} held-out decisions where some T beats T = 2 by at least "
@@ -308,7 +310,7 @@ def report(args) -> str:
                       "[95 % CI, cases resampled] |", "|---|---|---|---|---|---|"]
             res = {}
             for label, path, algo in PAIRED:
-                file = ROOT / "results" / path.format(s=scenario, k=args.actor_seed)
+                file = ROOT / "results" / path.format(s=scenario, k=seed)
                 if file.exists():
                     res[label] = r = paired(mine, read_row(file, algo), rng)
                     lines.append(f"| {label} | {json.loads(file.read_text()).get('world', 1)} | {r['other']:.3f} | "
@@ -330,9 +332,9 @@ def main(argv=None):
     sub = p.add_subparsers(dest="command", required=True)
     for name in ("label", "train", "evaluate", "report"):
         s = sub.add_parser(name)
-        if name != "report":
+        if name != "report":  # report: every scenario and actor seed with students
             s.add_argument("--scenario", choices=SCENARIOS, required=True)
-        s.add_argument("--actor-seed", type=int, default=0, help="whose committed TARL actor (results/runs)")
+            s.add_argument("--actor-seed", type=int, default=0, help="whose committed TARL actor (results/runs)")
         s.add_argument("--out", type=Path, default=OUT, help="where the labels and students go")
     lab = sub.choices["label"]
     lab.add_argument("--cases", type=int, default=1000, help="cases to label, in chunks")
