@@ -268,7 +268,7 @@ def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
         fail(f"cannot load {args.load} as --algo {args.algo}: {str(e).splitlines()[0][:200]}")
     label = f"{name(args.algo)} ({state['step']:,} training steps)"
     if getattr(args, "timing", None):
-        return experiment.timing_override(args.timing, trainer), f"{label}, timing {args.timing}"
+        return experiment.timing_override(args.timing, trainer), f"{label}, timing {experiment.timing_name(args.timing)}"
     return trainer.driver, label
 
 

@@ -11,7 +11,8 @@ exactly as experiment.play_round plays it (bench/figures.py's replay), by one dr
 side by side (--left, --right) on the same case. A DRIVER is ALGO[:CKPT][:TIMING]:
   ALGO    a row of Table 3 (tarl, sac, lattice-idm, ...: tarl.py --algo); lattice-idm takes no CKPT
   CKPT    its ckpt.pt or policy.pt (tarl.py's --load)
-  TIMING  how the loaded actor's T is chosen, as tarl.py's --timing: learned, phased, random, fixed=T, cap=T
+  TIMING  how the loaded actor's T is chosen, as tarl.py's --timing: learned, phased, random, fixed=T, cap=T,
+          distilled=PATH (a student of bench/distillation.py)
 e.g. tarl:results/runs/roundabout-tarl-s0/policy.pt, or tarl:...policy.pt:fixed=1 (TARL's actor alone).
 
 Each side: the driver and its outcome; the scene from above (scene.py, as DrivingEnv.render() and Fig. 6
@@ -48,7 +49,7 @@ import figures  # noqa: E402
 import scene  # noqa: E402
 import tarl  # noqa: E402
 
-TIMING_SPEC = re.compile(r"^(learned|phased|random|fixed=\d+|cap=\d+)$")  # tarl.py --timing
+TIMING_SPEC = re.compile(r"^(learned|phased|random|fixed|cap|rollout|distilled)(=.+)?$")  # tarl.py --timing's names
 HEADER, STRIP = 22, 56  # [px] a side's title line above the view, the beta/T strip below it
 
 
