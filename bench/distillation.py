@@ -144,6 +144,8 @@ def label(args):
     t0 = time.time()
     try:
         for n, (k, file, want) in enumerate(todo, 1):
+            if file.exists():  # another labelling process of the same cases did it meanwhile
+                continue
             started = time.time()
             arrays = label_chunk(env, teacher, args.scenario, args.actor_seed, k, args.chunk,
                                  log=lambda s: print(s, flush=True))
