@@ -11,6 +11,7 @@ eval.json) and beside the ablations trained with that timing (tarl-fixed-t, tarl
 """
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -61,7 +62,7 @@ def rate(row: dict, key: str) -> str:
 
 
 def collect(args):
-    """results/retime/summary.md: each timing beside the learned one and the ablation trained with it."""
+    """results/retime/summary.md: each timing beside the learned one and the ablation trained with it, every seed."""
     lines = ["# TARL's actor under other timings", "", "Built by `python bench/retime.py --collect-only`. Each row: the "
              "shipped TARL policy evaluated with `--timing`, on the seed's 10 rounds x 200 test cases (success, "
              "collision, timeout: mean +- std over rounds). 'learned' is TARL's own eval.json; 'trained so' the "
@@ -69,8 +70,10 @@ def collect(args):
              "of the two arrives, how many go to the timing of the row (+) and to the learned one (-).", "",
              "| scenario | seed | timing | success | collision | timeout | crossing [s] | vs learned: + / - |",
              "|---|---|---|---|---|---|---|---|"]
+    seeds = sorted(set(args.seeds) | {int(m[1]) for f in args.results.glob("*.json")  # every seed re-timed so far
+                                      if (m := re.fullmatch(r"[a-z]+-tarl-s(\d+)-\w+\.json", f.name))})
     for scenario in SCENARIOS:
-        for seed in args.seeds:
+        for seed in seeds:
             learned = rows(ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "eval.json").get("tarl")
             if learned is None:
                 continue
