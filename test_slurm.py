@@ -44,9 +44,9 @@ PartitionName=debug Nodes={host} Default=YES MaxTime=INFINITE State=UP
 """
 
 
-def answers() -> bool:
-    """Does a Slurm controller answer, with an idle or busy node?"""
-    return subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True).stdout.strip() != ""
+def nodes(*options: str) -> str:
+    """sinfo's node lines (empty if no controller answers)."""
+    return subprocess.run(["sinfo", "-h", *options], capture_output=True, text=True).stdout.strip()
 
 
 @pytest.fixture(scope="session")
@@ -55,7 +55,7 @@ def slurm_up(tmp_path_factory):
     Slurm command at it) and stopped by its daemons' pids; no sbatch on PATH is a failure."""
     if shutil.which("sbatch") is None:
         pytest.fail("no sbatch on PATH: install Slurm (Debian: apt-get install slurm-wlm), README, Tests")
-    if answers():
+    if nodes("-o", "%t"):  # a controller answers: use its cluster
         yield
         return
     d = tmp_path_factory.mktemp("slurm")
@@ -64,13 +64,15 @@ def slurm_up(tmp_path_factory):
     conf.write_text(SLURM_CONF.format(host=socket.gethostname().split(".")[0], user=getpass.getuser(), d=d,
                                       cpus=os.cpu_count()))
     os.environ["SLURM_CONF"] = str(conf)  # sbatch, sinfo, scontrol and the tasks read it
-    daemons = [subprocess.Popen([daemon, "-D", "-f", str(conf)], stdout=open(d / f"{daemon}.log", "w"),
-                                stderr=subprocess.STDOUT) for daemon in ("slurmctld", "slurmd")]
+    daemons = []
+    for daemon in ("slurmctld", "slurmd"):
+        with open(d / f"{daemon}.log", "w") as log:
+            daemons.append(subprocess.Popen([daemon, "-D", "-f", str(conf)], stdout=log, stderr=subprocess.STDOUT))
     try:
-        deadline = time.time() + 30  # up within seconds
-        while not answers() and time.time() < deadline and all(p.poll() is None for p in daemons):
+        deadline = time.time() + 30  # its node idle within seconds
+        while not nodes("-t", "idle") and time.time() < deadline and all(p.poll() is None for p in daemons):
             time.sleep(1)
-        if not answers():
+        if not nodes("-t", "idle"):
             logs = {n: (d / f"{n}.log").read_text().strip().splitlines() for n in ("slurmctld", "slurmd")}
             pytest.fail("a single-node Slurm did not start: " + "; ".join(
                 f"{n}: {lines[-1] if lines else 'no output'}" for n, lines in logs.items()))
