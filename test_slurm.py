@@ -59,7 +59,8 @@ def slurm_up(tmp_path_factory):
         yield
         return
     d = tmp_path_factory.mktemp("slurm")
-    (d / "slurmd").mkdir(), (d / "slurmctld").mkdir()
+    for spool in ("slurmd", "slurmctld"):
+        (d / spool).mkdir()
     conf = d / "slurm.conf"
     conf.write_text(SLURM_CONF.format(host=socket.gethostname().split(".")[0], user=getpass.getuser(), d=d,
                                       cpus=os.cpu_count()))
