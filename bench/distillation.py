@@ -38,7 +38,6 @@ import argparse
 import hashlib
 import json
 import re
-import subprocess
 import sys
 import tempfile
 import time
@@ -248,16 +247,14 @@ def evaluate(args):
             raise SystemExit(f"no student {student}: run `train` first")
         if dst.exists():
             continue
-        work = ROOT / "runs" / "distil" / f"{out.name}-{inputs}"
-        cmd = [sys.executable, str(ROOT / "tarl.py"), "--scenario", args.scenario, "--seed", str(args.actor_seed),
-               "--load", str(policy_path(args.scenario, args.actor_seed)), "--timing", f"distilled={student}",
-               "--eval-rows", "trained", "--threads", "1", "--workers", str(args.workers), "--out", str(work)]
-        print(f"student {inputs}: {' '.join(cmd[1:])}", flush=True)
-        if subprocess.run(cmd, cwd=ROOT).returncode != 0:
-            raise SystemExit(f"student {inputs}: the evaluation failed; run the same command again to resume it")
-        dst.write_text((work / "eval.json").read_text())
+        from table3 import commit, evaluate_policy  # bench/table3.py's
+        done = evaluate_policy(policy_path(args.scenario, args.actor_seed), args.scenario, "tarl", args.actor_seed,
+                               ROOT / "runs" / "distil" / f"{out.name}-{inputs}", None, "--timing",
+                               f"distilled={student}", "--eval-rows", "trained", workers=args.workers)
+        if done is None:
+            raise SystemExit(f"student {inputs}: the evaluation failed")
+        dst.write_text(done.read_text())
         if args.commit:
-            from table3 import commit
             commit([dst], f"distil: student {inputs} of the {args.scenario} (actor seed {args.actor_seed}"
                           + ", after DAgger" * bool(args.dagger) + ") on the test cases")
 

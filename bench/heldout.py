@@ -16,7 +16,6 @@ first of --algos, case by case with McNemar's exact p.
 import argparse
 import json
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -38,23 +37,18 @@ def folder(results: Path, gap: float, scenario: str, algo: str) -> Path:
 
 def run(gap: float, scenario: str, algo: str, args) -> bool:
     """One evaluation, resumable (its eval-rounds/ keep finished rounds); True if it finished."""
-    name, out = f"gap-{gap:g}/{scenario}-{algo}-s0", args.work / f"gap-{gap:g}" / f"{scenario}-{algo}-s0"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", "0", "--load",
-           str(ROOT / "results" / "runs" / f"{scenario}-{algo}-s0" / "policy.pt"), "--spawn-gap", f"{gap:g}",
-           "--eval-rows", "trained", "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases),
-           "--workers", "1", "--threads", "1", "--out", str(out)]
-    print(f"started {name}", flush=True)
-    with open(out.parent / f"{scenario}-{algo}-s0.log", "a") as log:
-        if subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT).returncode != 0:
-            print(f"FAILED {name}: see {out.parent / f'{scenario}-{algo}-s0.log'}", flush=True)
-            return False
+    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed: it loads torch
+    out = args.work / f"gap-{gap:g}" / f"{scenario}-{algo}-s0"
+    done = evaluate_policy(ROOT / "results" / "runs" / f"{scenario}-{algo}-s0" / "policy.pt", scenario, algo, 0, out,
+                           out.parent / f"{out.name}.log", "--spawn-gap", f"{gap:g}", "--eval-rows", "trained",
+                           "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases))
+    if done is None:
+        return False
     dst = folder(args.results, gap, scenario, algo) / "eval.json"
     dst.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copy(out / "eval.json", dst)
+    shutil.copy(done, dst)
     collect(args)
     if args.commit:
-        from table3 import commit  # bench/table3.py's, here when it is needed: it loads torch
         commit([dst, args.results / "summary.md"], f"heldout: {algo} seed 0 on the {scenario} at a {gap:g} s gap")
     return True
 

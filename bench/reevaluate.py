@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -45,17 +44,13 @@ def reevaluate(cell: str, args) -> bool:
     folder = RUNS / cell
     old = json.loads((folder / "eval.json").read_text())
     rows = [r["algo"] for r in old["rows"]]
-    cmd = [sys.executable, "tarl.py", "--scenario", old["scenario"], "--algo", rows[0], "--seed", str(old["seed"]),
-           "--load", str(folder / "policy.pt"), "--eval-rows", "all" if "lattice-idm" in rows[1:] else "trained",
-           "--threads", "1", "--workers", str(args.workers), "--out", str(args.work / cell)]
-    print(f"{cell}: {' '.join(cmd[1:])}", flush=True)
-    log = args.work / f"{cell}.log"
-    args.work.mkdir(parents=True, exist_ok=True)
-    with open(log, "a") as f:
-        if subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT).returncode != 0:
-            print(f"FAILED {cell}: see {log}", flush=True)
-            return False
-    new = json.loads((args.work / cell / "eval.json").read_text())
+    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed: it loads torch
+    done = evaluate_policy(folder / "policy.pt", old["scenario"], rows[0], old["seed"], args.work / cell,
+                           args.work / f"{cell}.log", "--eval-rows", "all" if "lattice-idm" in rows[1:] else "trained",
+                           workers=args.workers)
+    if done is None:
+        return False
+    new = json.loads(done.read_text())
     new["previous"] = dict(world=old.get("world", 1), code=old.get("code"))  # what it replaces
     (folder / "eval.json").write_text(json.dumps(new))
     lines = [f"- {cell} (world {old.get('world', 1)} -> {new['world']}): " + "; ".join(changed(old, new))]
@@ -65,7 +60,6 @@ def reevaluate(cell: str, args) -> bool:
             "after (world.WORLD_VERSION says what changed).", ""]
     TABLE.write_text("\n".join((TABLE.read_text().splitlines() if TABLE.exists() else head) + lines) + "\n")
     if args.commit:
-        from table3 import commit  # bench/table3.py's: add and commit just these files
         commit([folder / "eval.json", TABLE], f"re-evaluated {cell} in world {WORLD_VERSION}: {lines[0].split(': ', 1)[1]}")
     return True
 

@@ -13,7 +13,6 @@ import argparse
 import json
 import re
 import shutil
-import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
@@ -33,22 +32,18 @@ def cell(scenario: str, seed: int, timing: str) -> str:
 
 def run(scenario: str, seed: int, timing: str, args) -> bool:
     """One evaluation, resumable (its eval-rounds/ keep finished rounds); True if it finished."""
-    out = args.work / cell(scenario, seed, timing)
-    cmd = [sys.executable, "tarl.py", "--scenario", scenario, "--algo", "tarl", "--seed", str(seed), "--load",
-           str(ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "policy.pt"), "--timing", timing,
-           "--eval-rows", "trained", "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases),
-           "--workers", str(args.workers), "--threads", "1", "--out", str(out)]
-    print(f"started {cell(scenario, seed, timing)}", flush=True)
-    with open(args.work / f"{cell(scenario, seed, timing)}.log", "a") as log:
-        if subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT).returncode != 0:
-            print(f"FAILED {cell(scenario, seed, timing)}: see its .log", flush=True)
-            return False
-    dst = args.results / f"{cell(scenario, seed, timing)}.json"
+    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed: it loads torch
+    name = cell(scenario, seed, timing)
+    done = evaluate_policy(ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "policy.pt", scenario, "tarl", seed,
+                           args.work / name, args.work / f"{name}.log", "--timing", timing, "--eval-rows", "trained",
+                           "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), workers=args.workers)
+    if done is None:
+        return False
+    dst = args.results / f"{name}.json"
     dst.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copy(out / "eval.json", dst)
+    shutil.copy(done, dst)
     collect(args)
     if args.commit:
-        from table3 import commit  # bench/table3.py's, here when it is needed: it loads torch
         commit([dst, args.results / "summary.md"], f"retime: TARL seed {seed} on the {scenario} with --timing {timing}")
     return True
 

@@ -25,6 +25,7 @@ paper)", with "-" in the paper's columns. Those tables are the user's, not the c
 to --out FILE if given, never to results/table3.md, and --readme does not go with --extra.
 """
 import argparse
+import contextlib
 import fcntl
 import json
 import os
@@ -137,6 +138,25 @@ def commit(files: list[Path], message: str):
                 ["git", "-C", str(ROOT), "commit", "-q", "-m", message, "--", *map(str, files)]).returncode == 0:
             return
         time.sleep(5)
+
+
+def evaluate_policy(policy: Path, scenario: str, algo: str, seed: int, out: Path, log: Path | None, *flags: str,
+                    workers: int = 1) -> Path | None:
+    """A committed policy evaluated, not trained (`tarl.py --load POLICY`, one thread a process), on seed SEED's test
+    cases, with tarl.py's FLAGS; resumable (OUT/eval-rounds keeps finished rounds). Its output goes to LOG (None: the
+    terminal). Returns OUT/eval.json, or None once it has printed where to look: the one way the bench scripts
+    (retime, heldout, reevaluate, distillation) run a shipped policy again."""
+    cmd = [sys.executable, "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--load",
+           str(policy), *flags, "--threads", "1", "--workers", str(workers), "--out", str(out)]
+    print(f"{out.name}: {' '.join(cmd[1:])}", flush=True)
+    if log is not None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a") if log is not None else contextlib.nullcontext() as f:  # None: stdout is the terminal
+        code = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=f and subprocess.STDOUT).returncode
+    if code != 0:
+        print(f"FAILED {out.name}: see {log or 'the output above'}; the same command resumes it", flush=True)
+        return None
+    return out / "eval.json"
 
 
 def claim(cell, args):
