@@ -262,7 +262,7 @@ def test_heldout_sets_each_row_beside_the_first_case_by_case(tmp_path):
 
 
 def test_table3_writes_n_beside_every_row_and_a_one_seed_row_without_a_spread_over_seeds(tmp_path):
-    """A row of one seed shows its per-round spread and "n = 1", never "+- 0.000" (issue 41)."""
+    """A row of one seed shows its per-round spread and "n = 1", never "+- 0.000"."""
     _results(tmp_path, [("roundabout-sac-s0", "roundabout", 0, [_row("sac", 0, 0.8, "abc")]),
                         ("roundabout-sac-s1", "roundabout", 1, [_row("sac", 1, 0.9, "abc")]),
                         ("roundabout-tarl-s0-500k", "roundabout", 0, [_row("tarl", 0, 0.95, "abc")])])

@@ -26,8 +26,8 @@ DAgger (one round, as run for the roundabout): a student drives new cases while 
 `train --dagger B` fits every student on both sets and `evaluate --dagger B` plays them; both use
 results/distil/SCENARIO-sSEED-dagger.
 
-report, for every scenario and actor seed with students: the verdict registered before any student was evaluated
-(issue 46): a student passes if it beats the better of the trained ablation rows tarl-fixed-t and tarl-random-t of
+report, for every scenario and actor seed with students, every student's verdict in one table first: the rule
+registered before any student was evaluated (RESULTS.md, "What the timing adds"): a student passes if it beats the better of the trained ablation rows tarl-fixed-t and tarl-random-t of
 the seed (the one with more successes on these cases) on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside
 it, each student against TARL, TARL's actor re-timed with T = 2 and a random T (results/retime) and the teacher on
 its 400 cases (results/rollout).
@@ -278,6 +278,8 @@ def report(args) -> str:
              "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
              ""]
     seeds = sorted({int(m[1]) for d in args.out.glob("*-s*") if (m := re.fullmatch(r"[a-z]+-s(\d+)(-dagger)?", d.name))})
+    glance = ["## Every student against the rule", "", "| scenario | actor seed | DAgger | student | success | the better "
+              "ablation row | student only / it only arrives | McNemar p | verdict |", "|---|---|---|---|---|---|---|---|---|"]
     for scenario, seed, dagger in ((s, k, d) for s in SCENARIOS for k in seeds for d in (False, True)):
         out = students_dir(args.out, scenario, seed, dagger)
         if not (out / "students.json").exists():
@@ -321,7 +323,10 @@ def report(args) -> str:
                 verdict = "passes" if r["diff"] > 0 and r["p"] < ALPHA else "does not pass"
                 lines += ["", f"The pre-registered test (the better ablation row here is {best}, "
                           f"{r['other']:.3f}): student {name} **{verdict}** ({r['diff']:+.3f}, p {p_text(r['p'])}).", ""]
-    text = "\n".join(lines) + "\n"
+                glance.append(f"| {scenario} | {seed} | {'after' if dagger else 'before'} | {name} | {r['mine']:.3f} | "
+                              f"{best} {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | {p_text(r['p'])} | "
+                              f"{verdict} |")
+    text = "\n".join(lines[:4] + glance + [""] + lines[4:]) + "\n"
     (args.out / "summary.md").write_text(text)
     return text
 
