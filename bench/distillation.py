@@ -27,10 +27,10 @@ DAgger (one round, as run for the roundabout): a student drives new cases while 
 results/distil/SCENARIO-sSEED-dagger.
 
 report, for every scenario and actor seed with students, every student's verdict in one table first: the rule
-registered before any student was evaluated (RESULTS.md, "What the timing adds"): a student passes if it beats the better of the trained ablation rows tarl-fixed-t and tarl-random-t of
-the seed (the one with more successes on these cases) on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside
-it, each student against TARL, TARL's actor re-timed with T = 2 and a random T (results/retime) and the teacher on
-its 400 cases (results/rollout).
+registered before any student was evaluated (RESULTS.md, "What the timing adds"): a student passes if it beats the
+better of the trained ablation rows tarl-fixed-t and tarl-random-t of the seed (the one with more successes on
+these cases) on the roundabout, McNemar p < 0.05 on the 2,000 cases. Beside it, each student against TARL, TARL's
+actor re-timed with T = 2 and a random T (results/retime) and the teacher on its 400 cases (results/rollout).
 """
 from __future__ import annotations
 
