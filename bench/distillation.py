@@ -278,8 +278,9 @@ def report(args) -> str:
              "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
              ""]
     seeds = sorted({int(m[1]) for d in args.out.glob("*-s*") if (m := re.fullmatch(r"[a-z]+-s(\d+)(-dagger)?", d.name))})
-    glance = ["## Every student against the rule", "", "| scenario | actor seed | DAgger | student | success | the better "
-              "ablation row | student only / it only arrives | McNemar p | verdict |", "|---|---|---|---|---|---|---|---|---|"]
+    glance = ["## Every student against the rule", "",
+              "| scenario | actor seed | DAgger | student | success | the better ablation row | student only / it only "
+              "arrives | McNemar p | verdict |", "|---|---|---|---|---|---|---|---|---|"]
     for scenario, seed, dagger in ((s, k, d) for s in SCENARIOS for k in seeds for d in (False, True)):
         out = students_dir(args.out, scenario, seed, dagger)
         if not (out / "students.json").exists():
