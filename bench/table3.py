@@ -151,8 +151,8 @@ def evaluate_policy(policy: Path, scenario: str, algo: str, seed: int, out: Path
     print(f"{out.name}: {' '.join(cmd[1:])}", flush=True)
     if log is not None:
         log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "a") if log is not None else contextlib.nullcontext() as f:  # None: stdout is the terminal
-        code = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=f and subprocess.STDOUT).returncode
+    with open(log, "a") if log is not None else contextlib.nullcontext() as f:  # f None: the terminal's
+        code = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT if log is not None else None).returncode
     if code != 0:
         print(f"FAILED {out.name}: see {log or 'the output above'}; the same command resumes it", flush=True)
         return None
