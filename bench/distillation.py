@@ -240,6 +240,7 @@ def train(args):
 
 
 def evaluate(args):
+    from table3 import commit, evaluate_policy  # bench/table3.py's
     out = students_dir(args.out, args.scenario, args.actor_seed, args.dagger)
     for inputs in args.students:
         student, dst = out / f"{inputs}.pt", out / f"eval-{inputs}.json"
@@ -247,7 +248,6 @@ def evaluate(args):
             raise SystemExit(f"no student {student}: run `train` first")
         if dst.exists():
             continue
-        from table3 import commit, evaluate_policy  # bench/table3.py's
         done = evaluate_policy(policy_path(args.scenario, args.actor_seed), args.scenario, "tarl", args.actor_seed,
                                ROOT / "runs" / "distil" / f"{out.name}-{inputs}", None, "--timing",
                                f"distilled={student}", "--eval-rows", "trained", workers=args.workers)
