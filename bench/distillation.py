@@ -272,11 +272,12 @@ def report(args) -> str:
     from exercises.compare import read_row
     from exercises.paired import p_text
     from rollout_ceiling import paired
-    lines = ["# A timing taught by a privileged teacher", "",
+    head = ["# A timing taught by a privileged teacher", "",
              "Built by `python bench/distillation.py report` (bench/distillation.py's docstring: how). Regret: the "
              "return (Eq. (31), to the episode's end) a choice loses per decision against the teacher's best "
              "candidate, on held-out cases; agreement: the share of held-out decisions where it picks the teacher's T.",
              ""]
+    lines = []  # each scenario's and seed's sections, after the glance table
     seeds = sorted({int(m[1]) for d in args.out.glob("*-s*") if (m := re.fullmatch(r"[a-z]+-s(\d+)(-dagger)?", d.name))})
     glance = ["## Every student against the rule", "",
               "| scenario | actor seed | DAgger | student | success | the better ablation row | student only / it only "
@@ -327,7 +328,7 @@ def report(args) -> str:
                 glance.append(f"| {scenario} | {seed} | {'after' if dagger else 'before'} | {name} | {r['mine']:.3f} | "
                               f"{best} {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | {p_text(r['p'])} | "
                               f"{verdict} |")
-    text = "\n".join(lines[:4] + glance + [""] + lines[4:]) + "\n"
+    text = "\n".join(head + glance + [""] + lines) + "\n"
     (args.out / "summary.md").write_text(text)
     return text
 
