@@ -314,11 +314,11 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_welchs_tes
     def row(path, algo):
         return next(r for r in json.loads(path.read_text())["rows"] if r["algo"] == algo)
 
-    def seeds(scenario, algo, key):  # {seed: value} of every cell at 10^5, in seed order as the table sums them
-        host = "tarl" if algo in ("lattice-idm", "tarl-step1") else algo  # (a mean of 0.3415 rounds by that order)
-        cells = [p for p in runs.glob(f"{scenario}-{host}-s*") if re.fullmatch(rf"{scenario}-{host}-s\d+", p.name)]
-        return {int(p.name.rsplit("-s", 1)[1]): row(p / "eval.json", algo)[key]["mean"]
-                for p in sorted(cells, key=lambda p: int(p.name.rsplit("-s", 1)[1]))}
+    def seeds(scenario, algo, key):  # {seed: value} of every cell at 10^5, in seed order as table3 sums them
+        host = "tarl" if algo in ("lattice-idm", "tarl-step1") else algo
+        cells = {int(p.name.rsplit("-s", 1)[1]): p for p in runs.glob(f"{scenario}-{host}-s*")
+                 if re.fullmatch(rf"{scenario}-{host}-s\d+", p.name)}
+        return {k: row(cells[k] / "eval.json", algo)[key]["mean"] for k in sorted(cells)}
 
     def power(n, d, s_a, s_b):
         se, df = math.sqrt((s_a ** 2 + s_b ** 2) / n), (s_a ** 2 + s_b ** 2) ** 2 / ((s_a ** 4 + s_b ** 4) / (n - 1))

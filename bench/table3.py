@@ -475,8 +475,9 @@ def seed_test(a: dict, b: dict, margin: float | None, rng: np.random.Generator) 
     with its 95 % and 90 % CIs; the `verdict`; if undecided, the seeds per row that would settle it
     (`seeds_to_settle`, at the observed spread, None beyond MOST_SEEDS); A's wins over the seeds both have, paired by
     seed (a seed's rows met the same cases), with the exact sign-flip p of their differences
-    (exercises.paired.sign_flip); `improvement`: P(A > B) with its 95 % interval."""
-    x, y = (np.array(list(seeds.values())) for seeds in (a, b))
+    (exercises.paired.sign_flip); `improvement`: P(A > B) with its 95 % interval. Each row's seeds are taken in seed
+    order, whatever order the files were read in: a mean that ends in 5 prints as the order sums it."""
+    x, y = (np.array([seeds[k] for k in sorted(seeds)]) for seeds in (a, b))
     both = np.array([a[k] - b[k] for k in sorted(a.keys() & b.keys())])
     test = welch(x, y)
     said = verdict(test, margin)
