@@ -303,6 +303,20 @@ def test_the_labels_it_reads_are_the_rows_labels():
     assert paired.LABELS == {algo: row.label for algo, row in experiment.ROWS.items()}
 
 
+def test_it_compares_every_seed_both_rows_have_unless_told(capsys):
+    """Without --seeds, every committed seed of the pair: TARL's ablations have ten, SAC-Lag three; the rows TARL's
+    runs hold (tarl-step1, lattice-idm) count as TARL's; a pair with no seed is one line before any work."""
+    runs = [HERE / "results" / "runs"]
+    ten = set(paired.common_seeds(runs, "roundabout", "tarl", "tarl-fixed-t"))
+    assert ten >= set(range(10)) and paired.common_seeds(runs, "roundabout", "tarl", "sac-lag") == [0, 1, 2]
+    assert set(paired.common_seeds(runs, "roundabout", "tarl-step1", "lattice-idm")) == set(
+        paired.common_seeds(runs, "roundabout", "tarl", "tarl")) >= set(range(10))
+    assert paired.common_seeds(runs, "intersection", "tarl", "sac", budget="500k") == [0]
+    with pytest.raises(SystemExit) as e:
+        paired.main(["--scenario", "roundabout", "tarl", "no-such-row"])
+    assert e.value.code == 2 and "no seed has both tarl and no-such-row" in capsys.readouterr().err
+
+
 # ---- Every command of EXERCISES.md and INSTRUCTORS.md, at a tiny budget ------------------------------
 
 def doc_commands() -> list[tuple[str, int]]:

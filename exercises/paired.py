@@ -4,8 +4,8 @@
     python -m exercises.paired --scenario roundabout tarl tarl-consistent --runs results/runs runs/hw/runs
 
 Every row of Table 3 met the same test cases, seed by seed (results/runs/SCENARIO-ALGO-sK/eval.json: 10
-rounds x 200 cases, each case's outcome). Two rows are compared on them, for each seed and pooled, by
-`paired`, the project's one paired comparison:
+rounds x 200 cases, each case's outcome). Two rows are compared on them, on every seed that has both
+(or --seeds) and pooled, by `paired`, the project's one paired comparison:
 
   case by case   the cases where exactly one of the two arrives (the discordant pairs), split by how the
                  other failed: results/table3.md's "Case by case" counts, checked against it where it has them;
@@ -63,6 +63,16 @@ def find_row(runs: list[Path], scenario: str, algo: str, seed: int, budget: str 
                 except SystemExit:  # this run has no such row
                     continue
     return None
+
+
+def common_seeds(runs: list[Path], scenario: str, a: str, b: str, budget: str = "") -> list[int]:
+    """Every seed that has both rows in RUNS (--seeds' default): the run folders' seeds, kept where `find_row`
+    finds A and B."""
+    hosts = "|".join(re.escape(algo) for algo in {a, b, *HOSTS})
+    name = re.compile(rf"{re.escape(scenario)}-(?:{hosts})-s(\d+){'-' + re.escape(budget) if budget else ''}")
+    seeds = sorted({int(m[1]) for folder in runs if folder.is_dir() for run in folder.iterdir()
+                    if (m := name.fullmatch(run.name))})
+    return [s for s in seeds if all(find_row(runs, scenario, algo, s, budget) is not None for algo in (a, b))]
 
 
 def mcnemar(n_a: int, n_b: int) -> float:
@@ -157,20 +167,23 @@ def main(argv=None) -> int:
     p.add_argument("a", help="a row of Table 3 (tarl, sac-lag, lattice-idm, tarl-step1, ...)")
     p.add_argument("b", help="another row")
     p.add_argument("--scenario", choices=("intersection", "roundabout"), default="roundabout")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seeds", type=int, nargs="+", help="default: every seed that has both rows")
     p.add_argument("--runs", type=Path, nargs="+", default=[ROOT / "results" / "runs"],
                    help="folders of SCENARIO-ALGO-sK runs, searched in order")
     p.add_argument("--budget", default="", help="runs of another budget, named SCENARIO-ALGO-sK-BUDGET (500k)")
     p.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap resamples")
     p.add_argument("--seed", type=int, default=0, help="the bootstrap's random seed")
     args = p.parse_args(argv)
+    seeds = args.seeds or common_seeds(args.runs, args.scenario, args.a, args.b, args.budget)
+    if not seeds:
+        p.error(f"no seed has both {args.a} and {args.b} on the {args.scenario} in {', '.join(map(str, args.runs))}")
     rng, table = np.random.default_rng(args.seed), ROOT / "results" / "table3.md"
     known = table3_counts(table, args.scenario, args.b) if args.a == "tarl" and not args.budget else {}
     print(f"{args.a} (A) against {args.b} (B) on the {args.scenario}, the same test cases seed by seed")
     print(f"{'seed':<8}{'cases':>7}{'success A':>11}{'success B':>11}{'only A arrives: B coll. / t.o.':>32}"
           f"{'only B arrives: A coll. / t.o.':>32}{'McNemar p':>12}{'A - B, 95 % (cases resampled)':>36}")
     rows, diffs, agree = [], [], []
-    for seed in args.seeds:
+    for seed in seeds:
         a, b = (find_row(args.runs, args.scenario, algo, seed, args.budget) for algo in (args.a, args.b))
         if a is None or b is None:
             print(f"{seed:<8}no eval.json has {args.a if a is None else args.b} for seed {seed} in {', '.join(map(str, args.runs))}")
