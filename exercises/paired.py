@@ -65,14 +65,21 @@ def find_row(runs: list[Path], scenario: str, algo: str, seed: int, budget: str 
     return None
 
 
-def common_seeds(runs: list[Path], scenario: str, a: str, b: str, budget: str = "") -> list[int]:
-    """Every seed that has both rows in RUNS (--seeds' default): the run folders' seeds, kept where `find_row`
-    finds A and B."""
+def pairs_by_seed(runs: list[Path], scenario: str, a: str, b: str, budget: str = "", seeds=None) -> dict:
+    """Rows A and B of each of `seeds` (None where no run has one); without `seeds`, of every seed in RUNS that
+    has both (--seeds' default), each eval.json read once."""
+    if seeds is not None:
+        return {s: tuple(find_row(runs, scenario, algo, s, budget) for algo in (a, b)) for s in seeds}
     hosts = "|".join(re.escape(algo) for algo in {a, b, *HOSTS})
     name = re.compile(rf"{re.escape(scenario)}-(?:{hosts})-s(\d+){'-' + re.escape(budget) if budget else ''}")
-    seeds = sorted({int(m[1]) for folder in runs if folder.is_dir() for run in folder.iterdir()
+    found = sorted({int(m[1]) for folder in runs if folder.is_dir() for run in folder.iterdir()
                     if (m := name.fullmatch(run.name))})
-    return [s for s in seeds if all(find_row(runs, scenario, algo, s, budget) is not None for algo in (a, b))]
+    return {s: ab for s, ab in pairs_by_seed(runs, scenario, a, b, budget, found).items() if None not in ab}
+
+
+def common_seeds(runs: list[Path], scenario: str, a: str, b: str, budget: str = "") -> list[int]:
+    """Every seed that has both rows in RUNS: --seeds' default."""
+    return list(pairs_by_seed(runs, scenario, a, b, budget))
 
 
 def mcnemar(n_a: int, n_b: int) -> float:
@@ -174,8 +181,8 @@ def main(argv=None) -> int:
     p.add_argument("--bootstrap", type=int, default=10_000, help="bootstrap resamples")
     p.add_argument("--seed", type=int, default=0, help="the bootstrap's random seed")
     args = p.parse_args(argv)
-    seeds = args.seeds or common_seeds(args.runs, args.scenario, args.a, args.b, args.budget)
-    if not seeds:
+    pairs = pairs_by_seed(args.runs, args.scenario, args.a, args.b, args.budget, args.seeds)
+    if not pairs:
         p.error(f"no seed has both {args.a} and {args.b} on the {args.scenario} in {', '.join(map(str, args.runs))}")
     rng, table = np.random.default_rng(args.seed), ROOT / "results" / "table3.md"
     known = table3_counts(table, args.scenario, args.b) if args.a == "tarl" and not args.budget else {}
@@ -183,8 +190,7 @@ def main(argv=None) -> int:
     print(f"{'seed':<8}{'cases':>7}{'success A':>11}{'success B':>11}{'only A arrives: B coll. / t.o.':>32}"
           f"{'only B arrives: A coll. / t.o.':>32}{'McNemar p':>12}{'A - B, 95 % (cases resampled)':>36}")
     rows, diffs, agree = [], [], []
-    for seed in seeds:
-        a, b = (find_row(args.runs, args.scenario, algo, seed, args.budget) for algo in (args.a, args.b))
+    for seed, (a, b) in pairs.items():
         if a is None or b is None:
             print(f"{seed:<8}no eval.json has {args.a if a is None else args.b} for seed {seed} in {', '.join(map(str, args.runs))}")
             continue
