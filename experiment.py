@@ -32,11 +32,11 @@ from pathlib import Path
 
 import tarl  # noqa: I001 (first: it sets OpenMP's wait policy before torch loads)
 import baselines
-import distil
+from beyond import distil
 import numpy as np
-import rollout_timing
+from beyond import rollout_timing
 import torch
-import variants
+from beyond import variants
 import world
 from tarl import Driver, SACConfig, TimingConfig, TrainConfig, execute
 from world import SCENARIOS, DrivingEnv, EnvConfig
@@ -314,7 +314,7 @@ class Beside:
 
 CASE_KEYS = ("round", "case", "start", "outcome", "crossing_time", "steps")  # of each case, in eval.json
 KEPT = (*CASE_KEYS, "beta", "T")  # of an episode: what summarize needs
-BRANCHING = ("decisions", "branch_steps", "wall_s")  # of a case played by a rollout timing (rollout_timing.py)
+BRANCHING = ("decisions", "branch_steps", "wall_s")  # of a case played by a rollout timing (beyond/rollout_timing.py)
 
 
 def evaluation_key(cfg: EnvConfig, rows: list[dict], cases: int, seed: int) -> str:
@@ -458,7 +458,7 @@ def parse_args(argv=None):
     g.add_argument("--t-max", type=int, help=f"T_max [steps] of a run to train (default {TimingConfig.t_max})")
     g.add_argument("--timing", metavar="SPEC", help="with --load: how the loaded actor's T is chosen: learned, phased "
                    "(Eq. (7)'s schedule), random, fixed=T, cap=T (the timing taker's T, at most T) or rollout[=T1,T2,...] "
-                   "(the T of the best simulated branch, rollout_timing.py)")
+                   "(the T of the best simulated branch, beyond/rollout_timing.py)")
     w = p.add_argument_group("traffic (Table 1)")
     w.add_argument("--spawn-gap", type=float, help="t_spawn [s]: mean gap between departures (default: the scenario's)")
     w.add_argument("--svo", type=float, nargs=2, metavar=("LOW", "HIGH"), help="range of the humans' alpha_svo of "

@@ -50,7 +50,7 @@ def network(net_file) -> dict:
     """The road network as SUMO has it, read from its .net.xml (once per file): "lanes", a list of
     (shape (N, 2) [m], width [m], internal: inside a junction, its id starting ':'), and "junctions",
     the outlines (N, 2) [m] of the junctions that are not internal. The same as libsumo's lane.getShape,
-    lane.getWidth and junction.getShape (test_render.py)."""
+    lane.getWidth and junction.getShape (tests/test_render.py)."""
     return _network(str(net_file))
 
 

@@ -11,7 +11,7 @@ line) is experiment.py; the safe-RL rows are baselines.py.
     python tarl.py --scenario intersection --algo lattice-idm --eval-rounds 2 --eval-cases 20
 
 Equations are cited by the number printed in the paper's PDF (PAPER.md maps them to the LaTeX labels
-and has the notes cited as "PAPER.md, note n").
+and has the notes cited as "docs/PAPER.md, note n").
 
     Eq. (5) timing_input;  Eqs. (6), (11) beta;  Eqs. (7), (12) blend, execute;  Eq. (8) discounted_sum
     Eqs. (9), (13) td_target, critic_loss;  Eqs. (10), (14) policy_loss
@@ -244,7 +244,7 @@ class SAC:
 @torch.no_grad()
 def td_target(agent: SAC, batch: dict[str, torch.Tensor]) -> torch.Tensor:
     """Target y (B,) of both critics: Eq. (9) (timing taker) and Eq. (13) (actor), y = r + discount
-    (1 - done) V(s'), discount = gamma^T (gamma for the actor). PAPER.md, note 2: (13) is printed with
+    (1 - done) V(s'), discount = gamma^T (gamma for the actor). docs/PAPER.md, note 2: (13) is printed with
     max_{a'} Q-hat; SAC's target is the soft value V(s') = E_{a'~pi}[min Q'(s', a') - alpha log pi(a'|s')]."""
     alpha, next_obs = agent.log_alpha.exp(), batch["next_obs"]
     if agent.discrete:  # the expectation over T' exactly
@@ -343,7 +343,7 @@ class Driver:
     """How a row of Table 3 acts: act(obs, env) -> (a, T, beta); the ego executes Eq. (12) (execute).
 
     timing: "taker"   TARL: T ~ the timing taker (Alg. 1 line 18), beta = beta(T) of Eq. (11)
-            "phased"  tarl-consistent (beyond the paper, PAPER.md): T ~ the timing taker, then a_t is phased
+            "phased"  tarl-consistent (beyond the paper, docs/PAPER.md): T ~ the timing taker, then a_t is phased
                       in over T steps by Eq. (7), as in the timing imagination, before T is chosen again
             "fixed"   ablation tarl-fixed-t: T = fixed_T (2) always, beta = 1/2
             "random"  ablation tarl-random-t: T uniform on 1..T_max
@@ -573,7 +573,7 @@ class Trainer:
                     break
             # line 11, Eq. (8): r_T; a decision cut after k < T steps by the time limit bootstraps with gamma^k.
             # line 12: D_T <- D_T u {((s_t, a_t), T_t, r_T, s_t+T, delta)}; the action beside s_t+T is
-            # drawn afresh from the actor whenever the transition is used (timing_batch, PAPER.md, note 8).
+            # drawn afresh from the actor whenever the transition is used (timing_batch, docs/PAPER.md, note 8).
             self.D_T.add(x, T, discounted_sum(rewards, gamma), np.append(s2, np.float32(0.0)), gamma ** len(rewards),
                          terminated)
             for _ in range(self.tc.timing_updates):  # lines 13-14

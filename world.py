@@ -6,7 +6,7 @@ game with the ego at every conflict point, the ego's observation and reward (Env
 spawn_gap, svo_range and human_level shift the traffic). DrivingEnv is a Gymnasium environment,
 registered as tarl/Intersection-v0 and tarl/Roundabout-v0; tarl.py learns in it. Equations are cited
 by the number printed in the paper's PDF (PAPER.md maps them to the LaTeX labels and has the notes
-cited as "PAPER.md, note n").
+cited as "docs/PAPER.md, note n").
 
     Eqs. (1)-(2)                  DrivingEnv.step: one SUMO step; SUMO + level-k drivers are xi_t
     Table 1                       SCENARIOS, HUMAN_RANGES, DrivingEnv._spawn_humans
@@ -208,7 +208,7 @@ def arrival_time(d, v, accel, v_desired):
 
 
 def game_utility(alpha, gap, wait, decel, waited, cfg: EnvConfig):
-    """Eq. (24), each term min-max normalised by Eq. (25) (minimum 0, ranges in cfg; PAPER.md, note 6):
+    """Eq. (24), each term min-max normalised by Eq. (25) (minimum 0, ranges in cfg; docs/PAPER.md, note 6):
     U = a1 phi_safe - a2 phi_eff - a3 phi_comf + a4 phi_emo. The arrival-time gap [s] makes it safer;
     waiting [s] and braking (a fraction of the player's own capability) cost; having waited [s] pays
     when crossing. alpha: (..., 4) weights."""
@@ -634,7 +634,7 @@ class DrivingEnv(gymnasium.Env):
 
     def _load(self, file: str, seed: int):
         """A saved state (a test case, or save_state's) in a new simulation (~10 ms): loadState keeps
-        something of the run before it (SUMO 1.28, PAPER.md), a new simulation makes it continue the same."""
+        something of the run before it (SUMO 1.28, docs/PAPER.md), a new simulation makes it continue the same."""
         self._start(seed, warmup=False)
         self.sim.simulation.loadState(file)
         for h in self.sim.vehicle.getIDList():
@@ -642,7 +642,7 @@ class DrivingEnv(gymnasium.Env):
 
     def _sumo_step(self):
         """One SUMO step. A loaded state also forgets the lane-change mode of the humans still waiting to depart, and
-        lists them only after a step (SUMO 1.28, PAPER.md): each human gets it back as it enters, before it can change
+        lists them only after a step (SUMO 1.28, docs/PAPER.md): each human gets it back as it enters, before it can change
         lanes (a no-op without a load: _spawn_humans set it)."""
         self.sim.simulationStep()
         for h in self.sim.simulation.getDepartedIDList():
@@ -656,7 +656,7 @@ class DrivingEnv(gymnasium.Env):
         self.t_start = self.sim.simulation.getTime()
         self.next_spawn = self.t_start + self.rng.exponential(self.spawn_gap)
 
-    # ---- Branching: an episode's whole state, saved and restored (rollout_timing.py) --------------------
+    # ---- Branching: an episode's whole state, saved and restored (beyond/rollout_timing.py) --------------------
     # The env's own fields of a running episode, which SUMO's file does not hold (test_rollout_timing checks that no
     # field escapes). What _read saw is kept: right after a load, before a step, libsumo's context subscription still
     # returns vehicles of the simulation before it (SUMO 1.28), so the state is not read anew
@@ -676,7 +676,7 @@ class DrivingEnv(gymnasium.Env):
     def restore_state(self, state: dict) -> np.ndarray:
         """Back to a save_state(); returns the observation. A new simulation loads SUMO's file: two restores of one
         state continue alike step for step, though not exactly as the run that was saved (SUMO 1.28 reloads
-        positions to about 1 cm: PAPER.md, section 4). Then the env's own state, and what SUMO's file forgets: the
+        positions to about 1 cm: docs/PAPER.md, section 4). Then the env's own state, and what SUMO's file forgets: the
         humans' game (who ignores the ego, speed caps), the ego's driving modes and subscriptions."""
         self._load(state["file"], 0)  # SUMO's rng comes from the file (--save-state.rng)
         for k, v in state["env"].items():

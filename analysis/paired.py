@@ -18,7 +18,7 @@ Pooled: McNemar on the seeds' discordant pairs summed; the bootstrap resamples e
 averages the seeds. Both treat the seeds' models as fixed: two trained policies on the same cases, not
 two methods; three trained models say little about a fourth. Over seeds, the question a claim "A is
 better than B" asks: the seeds' mean differences and an exact sign-flip test on them (with n seeds its p
-is at least 2 / 2^n: 0.25 for 3; RESULTS.md's claims table shows it beside its Welch test).
+is at least 2 / 2^n: 0.25 for 3; docs/RESULTS.md's claims table shows it beside its Welch test).
 Numpy and scipy.stats only: no simulation.
 """
 from __future__ import annotations
@@ -37,7 +37,7 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from exercises.compare import discordant, matched, read_row  # noqa: E402
+from analysis.compare import discordant, matched, read_row  # noqa: E402
 
 # experiment.ROWS' labels (without importing torch), as results/table3.md names the rows
 LABELS = {"tarl": "TARL", "tarl-fixed-t": "TARL, T = 2 fixed", "tarl-random-t": "TARL, T random",
@@ -120,7 +120,7 @@ def paired(a: dict | list, b: dict | list, rng: np.random.Generator, resamples: 
     comparison samples, the McNemar test beside the interval takes them as its independent draws, and the rounds
     add no spread of their own: a round's cases are snapshots of its traffic 30 s apart, each with its own route
     and departures, and the committed rows' per-round differences spread no more than their cases predict
-    (test_exercises.py checks it). Why not the round: a percentile bootstrap of 10 rounds is too narrow (about 0.8
+    (tests/test_exercises.py checks it). Why not the round: a percentile bootstrap of 10 rounds is too narrow (about 0.8
     times the t interval of the same 10 values), and of the rollout ceiling's 2 rounds meaningless. Either way
     the trained policies are fixed: the interval says two policies differ on these cases, not two methods; the
     seeds say that (bench/table3.py's claims). A round's cases resampled with replacement are its counts of the

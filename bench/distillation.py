@@ -1,4 +1,4 @@
-"""Distilling the rollout timing (distil.py): the teacher's labels on training traffic, three students, their curve.
+"""Distilling the rollout timing (beyond/distil.py): the teacher's labels on training traffic, three students, their curve.
 
     python bench/distillation.py label --scenario roundabout --cases 1000 --commit   # resumable, a chunk per commit
     python bench/distillation.py train --scenario roundabout                         # students A, B, C and the curve
@@ -48,11 +48,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 import tarl  # noqa: E402, I001 (first: it sets OpenMP's wait policy before torch loads)
-import distil  # noqa: E402
+from beyond import distil  # noqa: E402
 import experiment  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from rollout_timing import RolloutConfig  # noqa: E402
+from beyond.rollout_timing import RolloutConfig  # noqa: E402
 from timing_probe import load_tarl  # noqa: E402
 
 OUT = ROOT / "results" / "distil"
@@ -269,8 +269,8 @@ ALPHA = 0.05
 
 
 def report(args) -> str:
-    from exercises.compare import read_row
-    from exercises.paired import p_text
+    from analysis.compare import read_row
+    from analysis.paired import p_text
     from rollout_ceiling import paired
     head = ["# A timing taught by a privileged teacher", "",
              "Built by `python bench/distillation.py report` (bench/distillation.py's docstring: how). Regret: the "

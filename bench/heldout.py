@@ -23,8 +23,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from exercises.compare import read_row  # noqa: E402
-from exercises.paired import p_text, paired  # noqa: E402
+from analysis.compare import read_row  # noqa: E402
+from analysis.paired import p_text, paired  # noqa: E402
 
 SCENARIOS = ("intersection", "roundabout")
 ALGOS = ("tarl", "tarl-fixed-t", "tarl-random-t")

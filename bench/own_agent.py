@@ -22,7 +22,7 @@ loop of its own. For each of --seeds it plays the R rounds x C test cases of tha
 eval-rounds/, finished seeds in their eval.json (tarl.py's layout, where exercises.paired finds it with --runs runs
 results/runs), and the same command plays only what is left. It prints each seed's row beside Table 3's rows of
 that seed and scenario (results/runs), then compares it with TARL and with the best row: case by case for each seed
-and pooled (exercises.paired.paired), and over the seeds with bench/table3.py's test of the paper's claims
+and pooled (analysis.paired.paired), and over the seeds with bench/table3.py's test of the paper's claims
 (seed_test). A policy that raises or returns a bad action (NaN, another shape) ends the run in one line naming the case.
 
 In Python: evaluate_policy(policy, "roundabout", seeds=(0, 1, 2), name="mine") (sys.path: the repository and bench/).
@@ -49,7 +49,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import experiment  # noqa: E402
-from exercises.paired import BOOTSTRAP, find_row, p_text, paired  # noqa: E402
+from analysis.paired import BOOTSTRAP, find_row, p_text, paired  # noqa: E402
 from table3 import MARGIN, MOST_SEEDS, NAMES, TABLE_ROWS, seed_test  # noqa: E402
 from tarl import Driver  # noqa: E402
 from world import OBS_DIM, SCENARIOS, DrivingEnv, EnvConfig  # noqa: E402
@@ -386,7 +386,7 @@ def report(rows: dict, tables: dict) -> str:
     lines = [f"{rows[seeds[0]]['label']} case by case, on the cases both played, seed by seed and pooled (McNemar on "
              "the seeds' discordant pairs summed): where only one arrives (how the other failed: collision / timeout), "
              f"McNemar's exact p, the success difference with a 95 % interval from {BOOTSTRAP:,} bootstrap resamples "
-             "of the cases within each round (exercises.paired.paired: why the case); over the seeds, on each seed's "
+             "of the cases within each round (analysis.paired.paired: why the case); over the seeds, on each seed's "
              "two successes, bench/table3.py's test of the paper's claims: Welch's 95 % CI and its verdict "
              f"(equivalent: the 90 % CI within +-{MARGIN['success_rate']}; if undecided, the seeds per row that would "
              "settle it), the seeds it is ahead in with the exact sign-flip p, P(it > the row) with its 95 % interval "

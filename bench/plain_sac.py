@@ -1,4 +1,4 @@
-"""A plain SAC, the reference for tarl.SAC: test_sac.py checks tarl.SAC's losses and updates against it, and
+"""A plain SAC, the reference for tarl.SAC: tests/test_sac.py checks tarl.SAC's losses and updates against it, and
 bench/speed.py times tarl.SAC.update against its update.
 
 It is written the usual way: two separate critic modules and their two target copies, a standard Adam per

@@ -1,4 +1,4 @@
-"""The ceiling of a state-dependent timing: TARL's seed-0 actor timed by simulated branches (rollout_timing.py),
+"""The ceiling of a state-dependent timing: TARL's seed-0 actor timed by simulated branches (beyond/rollout_timing.py),
 paired case by case with the fixed T = 2, the random T and the learned timing of the same actor.
 
     python bench/rollout_ceiling.py --commit                     # play or resume both scenarios, round by round
@@ -25,10 +25,10 @@ sys.path.insert(0, str(ROOT / "bench"))
 import tarl  # noqa: E402, I001 (first: it sets OpenMP's wait policy before torch loads)
 import experiment  # noqa: E402
 import numpy as np  # noqa: E402
-import rollout_timing  # noqa: E402
+from beyond import rollout_timing  # noqa: E402
 import torch  # noqa: E402
-from exercises.compare import read_row  # noqa: E402
-from exercises.paired import p_text, paired  # noqa: E402
+from analysis.compare import read_row  # noqa: E402
+from analysis.paired import p_text, paired  # noqa: E402
 from timing_probe import load_tarl  # noqa: E402
 
 OUT = ROOT / "results" / "rollout"
@@ -79,7 +79,7 @@ def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, comm
 def report(out: Path = OUT, timings=("rollout", "rollout=2")) -> str:
     rng, lines = np.random.default_rng(0), ["# The ceiling of a state-dependent timing", "",
                                             "Built by `python bench/rollout_ceiling.py --report` from the rounds in "
-                                            "results/rollout/ (module docstring of rollout_timing.py: how it chooses).", ""]
+                                            "results/rollout/ (module docstring of beyond/rollout_timing.py: how it chooses).", ""]
     for scenario in SCENARIOS:
         for timing in timings:
             keep = out / f"{scenario}-{tag(timing)}"
@@ -113,7 +113,7 @@ def report(out: Path = OUT, timings=("rollout", "rollout=2")) -> str:
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS))
-    p.add_argument("--timing", default="rollout", help="rollout or rollout=T1,T2,... (rollout_timing.py)")
+    p.add_argument("--timing", default="rollout", help="rollout or rollout=T1,T2,... (beyond/rollout_timing.py)")
     p.add_argument("--rounds", type=int, default=2, help="rounds 0..R-1 of seed 0's test cases")
     p.add_argument("--cases", type=int, default=200, help="cases per round (Table 3: 200)")
     p.add_argument("--workers", type=int, default=1, help="evaluation processes (each plays a round); 0: in this one")

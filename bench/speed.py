@@ -8,7 +8,7 @@
     observation 67, twin critics, automatic temperature): tarl.SAC.update against the plain
     reference update of bench/plain_sac.py, written the usual way (separate critic modules, separate
     standard Adam optimizers, critic step before policy step, a per-parameter soft-update loop) and
-    equal to tarl.SAC's update (test_sac.py checks it), for the actor's continuous SAC and the timing
+    equal to tarl.SAC's update (tests/test_sac.py checks it), for the actor's continuous SAC and the timing
     taker's discrete SAC. Also the machine's matrix-multiply peak and the FLOPs of one update
     (counted by torch), so the ceiling peak / FLOPs is known.
 (b) Environment steps per second on each scenario: bare SUMO stepping (simulationStep alone, the

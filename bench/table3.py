@@ -4,7 +4,7 @@
     python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
     python bench/table3.py --slurm --submit   # the unfinished cells as a Slurm array job (bench/slurm.py)
     python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
-    python bench/table3.py --collect-only --readme   # and the tables in README.md and RESULTS.md
+    python bench/table3.py --collect-only --readme   # and the tables in README.md and docs/RESULTS.md
     python bench/table3.py --collect-only --extra runs/roundabout-sb3-sac-s0/eval.json   # your own agent's rows too
 
 A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
@@ -16,9 +16,9 @@ checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipp
 The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
 beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value, with the number of
 seeds (n) beside every row; a row of one seed shows its mean and per-round std, no +- over seeds. With
---readme it also writes RESULTS.md's table of the paper's claims, each tested over whatever seeds its rows have
-(`claim_rows`: Welch's test by scipy.stats, RESULTS.md, "How the numbers were made"), and the paired differences
-at the paper's budget with a 95 % interval over the cases resampled (exercises.paired.paired).
+--readme it also writes docs/RESULTS.md's table of the paper's claims, each tested over whatever seeds its rows have
+(`claim_rows`: Welch's test by scipy.stats, docs/RESULTS.md, "How the numbers were made"), and the paired differences
+at the paper's budget with a 95 % interval over the cases resampled (analysis.paired.paired).
 --extra reads eval.json files of policies outside the paper (bench/own_agent.py's) as cells at the default budget, of
 their file's scenario and seed: each row is listed after Table 3's rows and the ablations as "LABEL (outside the
 paper)", with "-" in the paper's columns. Those tables are the user's, not the committed results: they go to stdout and
@@ -46,7 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import experiment  # noqa: E402
 import tarl  # noqa: E402
-from exercises import paired  # noqa: E402
+from analysis import paired  # noqa: E402
 SCENARIOS = ("intersection", "roundabout")
 ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
 # TARL's cell is the default command: it evaluates Lattice-IDM (and TARL's step-1 model) on the same
@@ -54,7 +54,7 @@ ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-
 RUN = tuple(algo for algo in ROWS if algo != "lattice-idm")
 # Beyond Table 3 (RESULTS.md, "What the timing adds", "Beyond the paper"): TARL's ablations without a timing taker,
 # two variants whose T means the same in both loops, one whose timing taker updates more, and three that give it the
-# signal it lacks (variants.py) (PAPER.md, 6; not in the README's headline)
+# signal it lacks (beyond/variants.py) (PAPER.md, 6; not in the README's headline)
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t", "tarl-consistent", "tarl-held", "tarl-utd", "tarl-actor-target",
              "tarl-rare-replay", "tarl-min-target", "tarl-branch")
 NAMES = {algo: row.label for algo, row in experiment.ROWS.items()} | {"tarl-step1": "TARL step 1"}
@@ -84,7 +84,7 @@ DEFAULT = (STEPS, None)  # a budget: (training steps, steps of Alg. 1's step 1 o
 
 def cell_name(scenario, algo, seed, steps, step_one=None) -> str:
     """S-A-sK; another budget than the default is in the name: S-A-sK-500k (the paper's, Table 2), and a step 1 of
-    another length after it: S-A-sK-67k-step1-40k (the ablations with TARL's real-loop budget, RESULTS.md)."""
+    another length after it: S-A-sK-67k-step1-40k (the ablations with TARL's real-loop budget, docs/RESULTS.md)."""
     return (f"{scenario}-{algo}-s{seed}" + (f"-{steps // 1000}k" if (steps, step_one) != DEFAULT else "")
             + (f"-step1-{step_one // 1000}k" if step_one is not None else ""))
 
@@ -359,9 +359,9 @@ def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> lis
 
 TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL's cell
 # The blocks that --readme writes, by NAME, wherever a `<!-- table3.py NAME -->` marker stands in README.md or
-# RESULTS.md: (rows, kind). "side": both scenarios side by side with each row's seeds (RESULTS.md, "Beyond the
+# docs/RESULTS.md: (rows, kind). "side": both scenarios side by side with each row's seeds (RESULTS.md, "Beyond the
 # paper"); "paper": the same with Table 3's values beside ours, the best of Table 3's rows in bold and the ablations in
-# italics (README.md's headline, RESULTS.md's Table 3); "budget": the paper's budget on one
+# italics (README.md's headline, docs/RESULTS.md's Table 3); "budget": the paper's budget on one
 # seed with TARL's paired differences; "claims": the paper's claims with their verdicts (RESULTS.md's top).
 README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS[:2]), "paper"), "results": (TABLE_ROWS, "paper"),
                "timing": (("tarl", *ABLATIONS), "side"),
@@ -390,10 +390,10 @@ def each_seed(found: dict) -> list[str]:
 
 
 def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list[str]:
-    """RESULTS.md's Table 3 at the paper's budget, one seed (n = 1): each row's success with its per-round std,
+    """docs/RESULTS.md's Table 3 at the paper's budget, one seed (n = 1): each row's success with its per-round std,
     collisions / timeouts and crossing time after `budget` steps, beside the same seed's success at the default budget
     and Table 3's; "not run" where a row has no cell at that budget yet. Paired against TARL at that budget on the same
-    cases (exercises.paired.paired, seeded 0): TARL's success minus the row's with its 95 % interval and the cases only
+    cases (analysis.paired.paired, seeded 0): TARL's success minus the row's with its 95 % interval and the cases only
     TARL arrives in / only the row does. One seed: two trained policies on the same cases, no verdict on the methods."""
     lines = [f"| scenario | model | seeds | success, {budget[0]:,} steps (per-round std) | collisions / timeouts | "
              f"crossing [s] | success, {STEPS:,} steps | paper | TARL - row, 95 % interval (cases resampled) | "
@@ -475,7 +475,7 @@ def seed_test(a: dict, b: dict, margin: float | None, rng: np.random.Generator) 
     with its 95 % and 90 % CIs; the `verdict`; if undecided, the seeds per row that would settle it
     (`seeds_to_settle`, at the observed spread, None beyond MOST_SEEDS); A's wins over the seeds both have, paired by
     seed (a seed's rows met the same cases), with the exact sign-flip p of their differences
-    (exercises.paired.sign_flip); `improvement`: P(A > B) with its 95 % interval. Each row's seeds are taken in seed
+    (analysis.paired.sign_flip); `improvement`: P(A > B) with its 95 % interval. Each row's seeds are taken in seed
     order, whatever order the files were read in: a mean that ends in 5 prints as the order sums it."""
     x, y = (np.array([seeds[k] for k in sorted(seeds)]) for seeds in (a, b))
     both = np.array([a[k] - b[k] for k in sorted(a.keys() & b.keys())])
@@ -490,7 +490,7 @@ def seed_test(a: dict, b: dict, margin: float | None, rng: np.random.Generator) 
 def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
     """Each claim of CLAIMS with its tests at the default budget, over whatever seeds each row has (`seed_test` of
     both rows' seed values, + better; the means as measured). At `budget`, seed `seed` alone and no verdict: both
-    values, their difference and the cases only A / only B arrives in (exercises.paired.paired). Differences are
+    values, their difference and the cases only A / only B arrives in (analysis.paired.paired). Differences are
     signed so that + is the paper's order."""
     out, rng = [], np.random.default_rng(0)
     for scenario, a, b, key in CLAIMS:
@@ -509,7 +509,7 @@ def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
 
 
 def claims_block(found: dict) -> list[str]:
-    """RESULTS.md's table of the paper's claims, one per line (`claim_rows`): the paper's two values; at the default
+    """docs/RESULTS.md's table of the paper's claims, one per line (`claim_rows`): the paper's two values; at the default
     budget both rows' means with their seeds (n), the difference with its 95 % CI, the verdict, the seeds per row
     that would settle an undecided claim, A's wins per seed, the sign-flip p and P(A > B); at the paper's budget,
     seed 0's difference and the cases only A / only B arrives in, with no verdict."""
@@ -563,10 +563,10 @@ def side_block(found: dict, algos, paper: bool = False) -> list[str]:
 
 def write_readme(found: dict, readme: Path):
     """Replace each block between `<!-- table3.py NAME -->` and `<!-- /table3.py -->` (NAME in README_ROWS) in
-    `readme` and in the RESULTS.md beside it, if there is one: the headline tables live in README.md, the full ones
-    and the evidence in RESULTS.md."""
+    `readme` and in docs/RESULTS.md beside it, if there is one: the headline tables live in README.md, the full ones
+    and the evidence in docs/RESULTS.md."""
     begin, end = "<!-- table3.py {} -->", "<!-- /table3.py -->"
-    for path in (readme, readme.with_name("RESULTS.md")):
+    for path in (readme, readme.parent / "docs" / "RESULTS.md"):
         if not path.exists():
             continue
         text = path.read_text()
@@ -669,7 +669,7 @@ def main(argv=None):
     p.add_argument("--out", type=Path, metavar="FILE", help="with --collect-only: write the tables here instead "
                    "(default: results/table3.md, or no file with --extra)")
     p.add_argument("--readme", action="store_true", help="also rewrite the result tables of README.md (the headline) "
-                   "and RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
+                   "and docs/RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
     args = p.parse_args(argv)
     # the cells run with cwd=ROOT: a relative --work or --results means the caller's directory, not ROOT
     args.work, args.results = args.work.resolve(), args.results.resolve()

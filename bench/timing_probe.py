@@ -20,7 +20,7 @@ and after the T steps the same continuation for both, TARL's learned driver to t
 Each branch: outcome, return and discounted return (gamma = 0.99) from the branch point, steps.
 
 A state is restored by deterministic replay of the case's recorded executed actions from its start, not
-by saveState/loadState (a loaded state does not continue exactly, PAPER.md, Sec. 4); the replayed
+by saveState/loadState (a loaded state does not continue exactly, docs/PAPER.md, Sec. 4); the replayed
 observation must equal the recorded one bit for bit, and the "original" branch must end as the episode did.
 
     python bench/timing_probe.py --scenario both          # the defaults: 13 min beside two training runs

@@ -1,6 +1,6 @@
-"""A timing taught by a privileged teacher (beyond the paper, PAPER.md 6): can what the timing taker sees choose T?
+"""A timing taught by a privileged teacher (beyond the paper, docs/PAPER.md 6): can what the timing taker sees choose T?
 
-The rollout timing (rollout_timing.py) picks T by simulating every candidate from the saved state. It sees more than
+The rollout timing (beyond/rollout_timing.py) picks T by simulating every candidate from the saved state. It sees more than
 the observation: each human's route, its true braking, acceleration and crossing speed, the vehicles beyond the two
 nearest per sector and those waiting to depart. Here it is a teacher, as in "learning by cheating" (Chen et al.,
 CoRL 2019): at each of its decisions, Teacher records what a student could see and every candidate's return in each
@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rollout_timing import RolloutConfig, RolloutTiming, best_candidate
+from beyond.rollout_timing import RolloutConfig, RolloutTiming, best_candidate
 from tarl import DrivingEnv, TimingConfig, scaled_action, timing_input
 from world import HUMAN_RANGES, sector_slots
 

@@ -1,6 +1,6 @@
-"""The rollout timing (beyond the paper, PAPER.md 6): how good can any state-dependent T be, with this actor?
+"""The rollout timing (beyond the paper, docs/PAPER.md 6): how good can any state-dependent T be, with this actor?
 
-TARL's timing taker picks T from the state (Eq. (5)); RESULTS.md finds it does no better than a fixed T = 2
+TARL's timing taker picks T from the state (Eq. (5)); docs/RESULTS.md finds it does no better than a fixed T = 2
 or a random T. This driver measures the ceiling of a timing that sees the state, by simulating instead of
 learning: a one-step lookahead over a base policy (Bertsekas, rollout algorithms), the base policy being the
 actor timed by the default T = 2.

@@ -1,6 +1,6 @@
-"""Variants of TARL beyond the paper that give its timing taker what RESULTS.md found it lacks (PAPER.md, 6).
+"""Variants of TARL beyond the paper that give its timing taker what docs/RESULTS.md found it lacks (PAPER.md, 6).
 
-RESULTS.md ("Why the learned timing does not help"): the timing taker's critic does not learn the value of T in
+docs/RESULTS.md ("Why the learned timing does not help"): the timing taker's critic does not learn the value of T in
 the rare states that decide an episode. In the last seconds before a collision it expects a good return from
 T = 1 (the actor alone) where T = 1 leads to a collision, while the actor's critic, on the same states, does see
 the danger. Each variant below is TARL (Algorithm 1, tarl.Trainer) with one change to how the timing taker
@@ -10,7 +10,7 @@ learns; how it acts (Eqs. (5), (11)-(12)) is the paper's.
     tarl-rare-replay    RareReplayTrainer: a quarter of every timing batch drawn from D_T's collisions
     tarl-min-target     MinTargetTrainer: Eq. (9)'s bootstrap from the lower of both critics, an update every step
     tarl-branch         BranchTrainer: Q(s, a, T) learned from measured branches of the real world, in place of the
-                        timing imagination (rollout_timing.py measures what such a timing can reach)
+                        timing imagination (beyond/rollout_timing.py measures what such a timing can reach)
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import rollout_timing
+from beyond import rollout_timing
 import tarl
 from tarl import OBS_DIM
 
@@ -87,7 +87,7 @@ class MinTargetTrainer(ActorTargetTrainer):
     roundabout's entry (RESULTS.md, 8): V_a(s_t+T) is the value of the actor driving from s_t+T on, so a long T
     looks as good as T = 1 wherever the actor's critic is content, and the cost of waiting again and again never
     reaches the target. The timing taker's own V does carry that cost (8 timing updates stopped the freeze,
-    RESULTS.md, 7) but misses the rare dangers that the actor's critic sees. Eq. (9)'s target takes the lower:
+    docs/RESULTS.md, 7) but misses the rare dangers that the actor's critic sees. Eq. (9)'s target takes the lower:
 
         y = r_T + gamma^T (1 - delta) min(V_T(s_t+T), V_a(s_t+T)),
 
@@ -107,7 +107,7 @@ class BranchTrainer(tarl.Trainer):
     """TARL whose timing taker learns what each T leads to in the real world, measured by branching the world,
     in place of the timing imagination (Algorithm 1 lines 4-15); how it acts is the paper's (Eqs. (11)-(12)).
 
-    The rollout timing (rollout_timing.py) finds that choosing T by simulating it from the state does better than
+    The rollout timing (beyond/rollout_timing.py) finds that choosing T by simulating it from the state does better than
     any fixed or random T (RESULTS.md). This loop teaches the timing taker from the same branches. It drives the
     real loop with TARL's learned timing for N_T steps, then to the episode's end. At a step where T can matter
     (the actor's and the planner's accelerations differ by at least RolloutConfig.gap), with probability

@@ -11,7 +11,7 @@ Per sector, the two nearest vehicles give a 5-tuple each (Eq. (28)), normalised 
 own part (Eq. (29)) and the whole observation (Eq. (30)) follow. The step reward is Eq. (31).
 
 Fill in the TODO(student) blocks (numpy), then:    python -m exercises.check 2
-Read PAPER.md, note 12 (the heading term and the rear sector). Don't read world.py's sector_index,
+Read docs/PAPER.md, note 12 (the heading term and the rear sector). Don't read world.py's sector_index,
 observe and reward before you are done: they are the answer.
 """
 import numpy as np

@@ -7,7 +7,7 @@ emergency. The acceleration of the chosen trajectory at the next step, capped by
 action a_base (Eqs. (22)-(23)).
 
 Fill in the three TODO(student) blocks (numpy), then:    python -m exercises.check 3
-Read PAPER.md, note 3 (why Eq. (22) keeps a sign). Don't read planner.py's quintic_coefficients,
+Read docs/PAPER.md, note 3 (why Eq. (22) keeps a sign). Don't read planner.py's quintic_coefficients,
 state_machine and base_acceleration before you are done: they are the answer.
 """
 import numpy as np

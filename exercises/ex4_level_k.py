@@ -9,7 +9,7 @@ its social value orientation a_svo (Eq. (26)).
 
 outcome_terms is given: it is the project's reading of what each pair of choices leads to (the paper
 does not say). Read it, then fill in the two TODO(student) blocks (numpy):    python -m exercises.check 4
-Read PAPER.md, note 6 (the signs of Eq. (24)). Don't read world.py's game_utility and
+Read docs/PAPER.md, note 6 (the signs of Eq. (24)). Don't read world.py's game_utility and
 level_k_decisions before you are done: they are the answer.
 """
 import numpy as np

@@ -4,7 +4,7 @@ and data/in_vivo.json, the project's own run of the in-vivo cases (in_vivo.py).
     python -m exercises.make_data        # from the repository's root, with tarl, world, planner in place
     python -m exercises.make_data --out /tmp/data --cases 2    # elsewhere, a short in-vivo reference
 
-Run it once (and again if the project's reference changes: test_exercises.py says so). The checker
+Run it once (and again if the project's reference changes: tests/test_exercises.py says so). The checker
 reads only the stored arrays, so a course may then blank the reference bodies. Inputs are random with
 fixed seeds; every function is called the way the project calls it.
 """

@@ -1,7 +1,7 @@
 """Tests of baselines.py: the math of SAC-Lag, SAC-PID, PPO-Lag and CPO against hand calculations, and
 short training runs of the four on the real simulator.
 
-Run: python -m pytest -q test_baselines.py
+Run: python -m pytest -q tests/test_baselines.py
 """
 import math
 

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import speed  # noqa: E402
 
 KEYS = ("sac_updates_per_s", "sac_plain_updates_per_s", "sac_ratio", "timing_updates_per_s",
@@ -301,13 +300,13 @@ def test_a_claim_holds_fails_is_equivalent_or_undecided_by_welchs_test_as_worked
 
 
 def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_welchs_test():
-    """RESULTS.md's claims table against the committed eval.json files, recomputed here with scipy.stats and without
+    """docs/RESULTS.md's claims table against the committed eval.json files, recomputed here with scipy.stats and without
     table3's code: each row's seeds at 10^5 (every seed committed), the means with n, Welch's 95 % CI and the verdict
     (the 90 % CI inside +-0.03: equivalent), the seeds that settle an undecided claim (the power of Welch's test, by
     the noncentral t, reaches 80 % there and not one seed before), A's wins and the exact sign-flip p over the
     seeds both rows have, P(A > B) by Mann-Whitney's U, and at 5 x 10^5 seed 0's difference and the cases only A / only
     B arrives in."""
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parents[1]
     runs = root / "results" / "runs"
     label = {name: algo for algo, name in table3.NAMES.items()}
 
@@ -325,7 +324,7 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_welchs_tes
         t = stats.t.ppf(0.975, df)
         return stats.nct.sf(t, df, d / se) + stats.nct.cdf(-t, df, d / se)
 
-    block = (root / "RESULTS.md").read_text().split("<!-- table3.py claims -->")[1].split("<!-- /table3.py -->")[0]
+    block = (root / "docs" / "RESULTS.md").read_text().split("<!-- table3.py claims -->")[1].split("<!-- /table3.py -->")[0]
     lines = [line for line in block.strip().splitlines()[2:]]
     assert len(lines) == len(table3.CLAIMS) >= 10
     seen = set()
@@ -372,7 +371,7 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_welchs_tes
 def _outside(tmp_path, name, cases=None, odd_start=False):
     """A committed eval.json (SAC's, roundabout, seed 0) as an outside policy's (bench/own_agent.py's layout): its row
     renamed, marked outside the paper, with its first `cases` cases or its first case's start changed."""
-    data = json.loads((Path(__file__).resolve().parent / "results" / "runs" / "roundabout-sac-s0" / "eval.json").read_text())
+    data = json.loads((Path(__file__).resolve().parents[1] / "results" / "runs" / "roundabout-sac-s0" / "eval.json").read_text())
     row = data["rows"][0]
     row.update(algo=name, label=name, policy={"source": "test", "key": "k", "outside_the_paper": True})
     row["cases"] = row["cases"][:cases]
@@ -383,7 +382,7 @@ def _outside(tmp_path, name, cases=None, odd_start=False):
 
 
 def test_table3_lists_an_outside_row_after_the_committed_ones_which_stay_as_they_are(tmp_path, capsys):
-    results = Path(__file__).resolve().parent / "results"
+    results = Path(__file__).resolve().parents[1] / "results"
     committed = (results / "table3.md").read_text()
     args = table3.argparse.Namespace(results=results, rounds=10, cases=200, readme=False)
     base = table3.collect(args, out=tmp_path / "base.md").splitlines()
@@ -403,7 +402,7 @@ def test_table3_lists_an_outside_row_after_the_committed_ones_which_stay_as_they
 
 
 def test_table3_reports_an_outside_row_that_met_other_cases_in_one_line(tmp_path):
-    results = Path(__file__).resolve().parent / "results"
+    results = Path(__file__).resolve().parents[1] / "results"
     args = table3.argparse.Namespace(results=results, rounds=10, cases=200, readme=False)
     extra = [_outside(tmp_path, "short", cases=200), _outside(tmp_path, "odd", odd_start=True)]
     text = table3.collect(args, extra, out=tmp_path / "table3.md")

@@ -1,4 +1,4 @@
-"""The distilled timing (distil.py, bench/distillation.py): the teacher's labels, the students, on the real simulator."""
+"""The distilled timing (beyond/distil.py, bench/distillation.py): the teacher's labels, the students, on the real simulator."""
 import subprocess
 import sys
 import tempfile
@@ -8,14 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-import distil
+from beyond import distil
 import experiment
 import world
-from rollout_timing import RolloutConfig, best_candidate
+from beyond.rollout_timing import RolloutConfig, best_candidate
 from tarl import Driver, beta, blend, timing_input
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE / "bench"))
+HERE = Path(__file__).resolve().parents[1]
 import distillation  # noqa: E402
 
 

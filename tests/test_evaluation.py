@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]
 BOUND = 60.0  # [s] the longest a run may take to end; past it the test kills it and fails
 
 
@@ -101,6 +101,7 @@ def test_a_network_sumo_cannot_parse_is_one_line_with_workers(tmp_path):
     for f in HERE.glob("*.py"):
         shutil.copy(f, tmp_path / f.name)
     shutil.copytree(HERE / "scenarios", tmp_path / "scenarios")
+    shutil.copytree(HERE / "beyond", tmp_path / "beyond")
     net = tmp_path / "scenarios" / "roundabout.net.xml"
     net.write_text(net.read_text()[:5000])
     proc = run(["--scenario", "roundabout", "--algo", "lattice-idm", "--eval-rounds", "1", "--eval-cases", "1",

@@ -2,7 +2,7 @@
 answer with a message that names the mistake; the stored answers are still the project's; the bug hunt's
 copy of world.observe differs from it where it should, and nowhere a shape or a range would show; in vivo,
 a solution drives as the project does and a wrong answer is caught at a named case; the paired statistics
-are exact and agree with results/table3.md; every command of EXERCISES.md and INSTRUCTORS.md runs at a tiny
+are exact and agree with results/table3.md; every command of docs/EXERCISES.md and docs/INSTRUCTORS.md runs at a tiny
 budget and exits as its comment says; the student's page gives no answer away. (Instructors only: these tests
 name the bug hunt's bug.)"""
 import importlib
@@ -22,11 +22,13 @@ import numpy as np
 import pytest
 import torch
 import world
-from exercises import bughunt_observe, check, in_vivo, make_data, paired
+from analysis import paired
+from exercises import bughunt_observe, check, in_vivo, make_data
 from exercises.common import CFG
 from exercises.solutions import ex2_observation
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]
+DOCS = HERE / "docs"  # the two pages
 NUMBERS = ["1", "2", "3", "4", "5"]
 WRONG = sorted((HERE / "exercises" / "wrong").glob("ex*.py"))
 PAGES = ("EXERCISES.md", "INSTRUCTORS.md")  # the student's page, then the instructors' (the answers)
@@ -76,15 +78,15 @@ def test_the_command_line_exits_0_on_a_solution_and_1_on_a_wrong_answer():
 
 
 def test_the_instructors_page_lists_every_wrong_answer():
-    text = (HERE / "INSTRUCTORS.md").read_text()
+    text = (DOCS / "INSTRUCTORS.md").read_text()
     for path in WRONG:
         assert path.stem in text, path.stem
 
 
 def test_the_students_page_gives_no_answer_away_and_points_to_the_instructors_page_with_a_warning():
-    """EXERCISES.md names no kept wrong answer, quotes no message the checker keeps for one, and shows
-    neither the bug hunt's line nor its fix; its "For instructors" section links INSTRUCTORS.md as spoilers."""
-    text = (HERE / "EXERCISES.md").read_text()
+    """docs/EXERCISES.md names no kept wrong answer, quotes no message the checker keeps for one, and shows
+    neither the bug hunt's line nor its fix; its "For instructors" section links docs/INSTRUCTORS.md as spoilers."""
+    text = (DOCS / "EXERCISES.md").read_text()
     for path in WRONG:
         assert path.stem not in text, path.stem
         assert check.load(path).CHECKER_SAYS.lower() not in text.lower(), path.stem
@@ -100,16 +102,16 @@ def slug(heading: str) -> str:
 
 
 def test_the_links_between_the_two_pages_work():
-    """Every relative link of EXERCISES.md and INSTRUCTORS.md names a file that exists and, after #, one of
+    """Every relative link of docs/EXERCISES.md and docs/INSTRUCTORS.md names a file that exists and, after #, one of
     its headings; each page links the other."""
     links = {}
     for page in PAGES:
-        links[page] = re.findall(r"\]\(([^)\s]+)\)", (HERE / page).read_text())
+        links[page] = re.findall(r"\]\(([^)\s]+)\)", (DOCS / page).read_text())
         for link in links[page]:
             if re.match(r"[a-z]+:", link):
                 continue
             target, _, anchor = link.partition("#")
-            path = HERE / (target or page)
+            path = (DOCS / (target or page)).resolve()
             assert path.exists(), f"{page}: {link}"
             if anchor:
                 headings = re.findall(r"^#+ (.*)$", path.read_text(), re.M)
@@ -275,7 +277,7 @@ def test_the_rounds_add_no_spread_beyond_their_cases_in_the_committed_results():
     """Why paired.paired resamples cases, not rounds: for TARL against every other row of the same seed at 10^5, the
     variance of the per-round difference over the 10 rounds against the variance its 200 cases predict if they are
     independent draws (1 expected then; clustered cases would lift it). Averaged over the pairs it is at most 1.25."""
-    runs, ratios = Path(__file__).resolve().parent / "results" / "runs", []
+    runs, ratios = Path(__file__).resolve().parents[1] / "results" / "runs", []
     for path in sorted(runs.glob("*-s[0-9]*/eval.json")):
         scenario, seed = path.parent.name.split("-")[0], path.parent.name.rsplit("-s", 1)[1]
         mate = runs / f"{scenario}-tarl-s{seed}" / "eval.json"  # a row's seed may land before TARL's: no pair yet
@@ -317,12 +319,12 @@ def test_it_compares_every_seed_both_rows_have_unless_told(capsys):
     assert e.value.code == 2 and "no seed has both tarl and no-such-row" in capsys.readouterr().err
 
 
-# ---- Every command of EXERCISES.md and INSTRUCTORS.md, at a tiny budget ------------------------------
+# ---- Every command of docs/EXERCISES.md and docs/INSTRUCTORS.md, at a tiny budget ------------------------------
 
 def doc_commands() -> list[tuple[str, int]]:
     """(command, the exit code its comment promises: 1 after `# exits 1`, else 0) of every line of the
-    ```bash blocks of EXERCISES.md, then of INSTRUCTORS.md, in order."""
-    blocks = [b for page in PAGES for b in re.findall(r"```bash\n(.*?)```", (HERE / page).read_text(), re.S)]
+    ```bash blocks of docs/EXERCISES.md, then of docs/INSTRUCTORS.md, in order."""
+    blocks = [b for page in PAGES for b in re.findall(r"```bash\n(.*?)```", (DOCS / page).read_text(), re.S)]
     lines = [line.strip() for block in blocks for line in block.splitlines()]
     return [(line, 1 if re.search(r"#\s*exits 1", line) else 0) for line in lines if line and not line.startswith("#")]
 
@@ -385,10 +387,10 @@ def run_in_process(program: str, args: list[str]) -> int:
 
 
 def test_every_command_of_exercises_md_runs_and_exits_as_its_comment_says(tmp_path, monkeypatch, capsys):
-    """EXERCISES.md's commands, then INSTRUCTORS.md's, in document order in one folder (so that lab 6's
+    """docs/EXERCISES.md's commands, then docs/INSTRUCTORS.md's, in document order in one folder (so that lab 6's
     compare finds lab 6's run), at a tiny budget. The commands read results/, exercises/ and bench/ through
     links; what they write stays in tmp_path."""
-    for name in ("results", "exercises", "bench", "scenarios"):
+    for name in ("results", "exercises", "bench", "scenarios", "analysis", "beyond"):
         (tmp_path / name).symlink_to(HERE / name)
     monkeypatch.chdir(tmp_path)
     commands, failed, times = doc_commands(), [], []

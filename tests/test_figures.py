@@ -1,14 +1,12 @@
 """bench/figures.py on the real simulator: Fig. 6 of a test case replayed as the evaluation plays it, Fig. 5
 from a tiny train_log.csv, Sec. 5.5's table, and the one-line errors. Nothing is trained."""
 import json
-import sys
 from pathlib import Path
 
 import matplotlib.image
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import figures  # noqa: E402
 import experiment  # noqa: E402
 import tarl  # noqa: E402

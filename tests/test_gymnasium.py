@@ -13,7 +13,7 @@ from gymnasium.utils.env_checker import check_env
 
 import world
 
-ROOT = Path(__file__).resolve().parent
+ROOT = Path(__file__).resolve().parents[1]
 IDS = ("tarl/Intersection-v0", "tarl/Roundabout-v0")
 # the checker recommends an action space of [-1, 1]; ours is the paper's acceleration in m/s^2 (RescaleAction maps it)
 UNSCALED = "For Box action spaces, we recommend using a symmetric and normalized space"

@@ -13,12 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent
-sys.path.insert(0, str(ROOT / "bench"))
+ROOT = Path(__file__).resolve().parents[1]
 import own_agent  # noqa: E402
 import experiment  # noqa: E402
 import table3  # noqa: E402
-from exercises import paired  # noqa: E402
+from analysis import paired  # noqa: E402
 from world import EnvConfig  # noqa: E402
 
 NOISE = np.random.default_rng(0)

@@ -16,8 +16,7 @@ import scene
 import tarl
 import world
 
-ROOT = Path(__file__).resolve().parent
-sys.path.insert(0, str(ROOT / "bench"))
+ROOT = Path(__file__).resolve().parents[1]
 import video  # noqa: E402
 
 

@@ -1,5 +1,5 @@
 """Branching the world (DrivingEnv.save_state / restore_state, rollout_timing.resample_future) and the rollout timing
-(rollout_timing.py), on the real simulator."""
+(beyond/rollout_timing.py), on the real simulator."""
 import pickle
 import subprocess
 import sys
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import experiment
-import rollout_timing
+from beyond import rollout_timing
 import world
-from rollout_timing import RolloutConfig, RolloutTiming, resample_future
+from beyond.rollout_timing import RolloutConfig, RolloutTiming, resample_future
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]
 
 
 class Toward:

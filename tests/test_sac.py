@@ -1,10 +1,8 @@
 """Tests of tarl's SAC: the actor's and the timing taker's SAC (Section 4, Eqs. (9), (10), (13), (14)).
 
-Run: python -m pytest -q test_sac.py
+Run: python -m pytest -q tests/test_sac.py
 """
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +10,6 @@ import torch
 
 from tarl import SAC, ReplayBuffer, SACConfig, critic_loss, policy_loss, td_target, temperature_loss
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 from plain_sac import PlainSAC  # noqa: E402  (the plain reference SAC, bench/speed.py's too)
 
 OBS_DIM, T_MAX, LOW, HIGH, B = 67, 10, -3.0, 2.0, 32  # sizes of the paper; [m/s^2] bounds of the actor

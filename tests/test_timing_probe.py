@@ -1,15 +1,12 @@
 """bench/timing_probe.py: a restored state continues as the recorded episode did, and the two loops blend as
 Eq. (7) and Eqs. (11)-(12) say. Tiny sizes: one test case of the roundabout, the shipped seed-0 policy."""
 import json
-import sys
 import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent / "bench"))
 import timing_probe as tp  # noqa: E402
 
 tarl, experiment = tp.tarl, tp.experiment

@@ -222,7 +222,7 @@ def test_a_resumed_run_refuses_a_budget_it_has_already_passed(env, tmp_path):
 
 
 def test_step_one_sets_the_length_of_step_1_and_a_resumed_run_keeps_its_own(env, tmp_path):
-    """--step-one (the budget-equalised ablations of RESULTS.md): Alg. 1's step 1 runs that many steps, then on to
+    """--step-one (the budget-equalised ablations of docs/RESULTS.md): Alg. 1's step 1 runs that many steps, then on to
     its episode's end; a resume with another length is refused, and rows without a step 1 refuse it."""
     trainer = tarl.Trainer(env, "tarl-fixed-t", TrainConfig(steps=900, sac_fraction=100 / 900, n_actor=15), SMALL_SAC,
                            seed=1, out=tmp_path, timing="fixed", **QUIET)

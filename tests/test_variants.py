@@ -1,4 +1,4 @@
-"""The variants beyond the paper that give the timing taker the signal it lacks (variants.py, PAPER.md, 6): each
+"""The variants beyond the paper that give the timing taker the signal it lacks (beyond/variants.py, docs/PAPER.md, 6): each
 mechanism checked by hand on a D_T filled here, and a short real run of each that updates and reloads."""
 import dataclasses
 
@@ -8,7 +8,7 @@ import torch
 
 import experiment
 import tarl
-import variants
+from beyond import variants
 from tarl import OBS_DIM
 from test_train import QUIET, SMALL, SMALL_SAC, env  # noqa: F401 (env: the fixture, the intersection)
 
