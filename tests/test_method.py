@@ -9,7 +9,9 @@ import pytest
 
 import planner
 import tarl
-from tarl import EnvConfig, SACConfig, TimingConfig, TrainConfig
+import world
+from tarl import SACConfig, TimingConfig, TrainConfig
+from world import EnvConfig
 
 W = TimingConfig().omega  # w of Eq. (6)
 
@@ -50,21 +52,21 @@ def test_discounted_sum_is_eq_8_by_hand():
 
 
 def test_timing_input_carries_the_action_scaled():
-    x = tarl.timing_input(np.zeros(tarl.OBS_DIM, np.float32), np.array([2.0]), EnvConfig())
-    assert x.shape == (tarl.OBS_DIM + 1,) and x[-1] == 1.0
-    assert tarl.timing_input(np.zeros(tarl.OBS_DIM), np.array([-3.0]), EnvConfig())[-1] == -1.0
+    x = tarl.timing_input(np.zeros(world.OBS_DIM, np.float32), np.array([2.0]), EnvConfig())
+    assert x.shape == (world.OBS_DIM + 1,) and x[-1] == 1.0
+    assert tarl.timing_input(np.zeros(world.OBS_DIM), np.array([-3.0]), EnvConfig())[-1] == -1.0
 
 
 def test_an_action_bound_changed_in_its_one_home_reaches_the_planner_the_actor_and_eq_5():
     cfg = EnvConfig(scenario="intersection", a_min=-4.0, a_max=1.5)
-    env = tarl.DrivingEnv(cfg)
+    env = world.DrivingEnv(cfg)
     assert (env.action_space.low[0], env.action_space.high[0]) == (-4.0, 1.5)
     assert (env.planner_cfg.a_min, env.planner_cfg.a_max) == (-4.0, 1.5)
     trainer = tarl.Trainer(env, "tarl", SMALL, SMALL_SAC, log=lambda *a: None)
     low = float(trainer.actor.action_bias - trainer.actor.action_scale)
     high = float(trainer.actor.action_bias + trainer.actor.action_scale)
     assert (low, high) == (-4.0, 1.5)
-    assert tarl.timing_input(np.zeros(tarl.OBS_DIM), np.array([-4.0]), cfg)[-1] == -1.0  # Eq. (5)
+    assert tarl.timing_input(np.zeros(world.OBS_DIM), np.array([-4.0]), cfg)[-1] == -1.0  # Eq. (5)
     # the planner's emergency brake: a stopped car 1 m ahead of the ego at 10 m/s
     path_s, path_xy = np.array([0.0, 200.0]), np.array([[0.0, 0.0], [200.0, 0.0]])
     others = np.array([[56.0, 0.0, 0.0, 0.0, 0.0]])
@@ -96,7 +98,7 @@ class Recorder:
 
 @pytest.fixture(scope="module")
 def trainer():
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     trainer = tarl.Trainer(Recorder(env), "tarl", SMALL, SMALL_SAC, seed=3, log=lambda *a: None)
     trainer.obs, _ = trainer.env.reset(seed=3)
     yield trainer
@@ -145,7 +147,7 @@ def test_torch_threads_wait_passively_unless_the_user_says_otherwise():
     """Spinning OpenMP threads beside another busy process made training ~40x slower (RESULTS.md, History)."""
     show = "import tarl, os; print(os.environ['OMP_WAIT_POLICY'])"
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    here = os.path.dirname(os.path.abspath(__file__))
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the repository's root
     assert subprocess.run([sys.executable, "-c", show], env=env, cwd=here, capture_output=True,
                           text=True).stdout.strip() == "PASSIVE"
     assert subprocess.run([sys.executable, "-c", show], env=env | {"OMP_WAIT_POLICY": "ACTIVE"}, cwd=here,
@@ -166,7 +168,7 @@ class Fixed:
 
 def test_w_changed_in_its_home_changes_the_executed_blend_here_and_in_an_evaluation_worker():
     import experiment
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     try:
         obs, _ = env.reset(seed=1)
         for omega in (2.0, 20.0):
@@ -186,7 +188,7 @@ def test_w_changed_in_its_home_changes_the_executed_blend_here_and_in_an_evaluat
 
 
 def test_t_max_changed_in_its_home_sizes_the_timing_taker_and_bounds_random_timings():
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     trainer = tarl.Trainer(env, "tarl", TrainConfig(steps=400, timing=TimingConfig(t_max=4)), SMALL_SAC, log=lambda *a: None)
     assert trainer.timing_taker.n_actions == 4 and trainer.driver.timing_cfg.t_max == 4
     driver = tarl.Driver("random", Fixed(0.0), timing_cfg=TimingConfig(t_max=3))
@@ -198,7 +200,7 @@ def test_t_max_changed_in_its_home_sizes_the_timing_taker_and_bounds_random_timi
 # ---- tarl-consistent (beyond the paper): the real loop executes Eq. (7) as the imagination does ------
 
 def test_the_phased_driver_holds_a_t_over_T_steps_by_eq_7_then_decides_again():
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     trainer = tarl.Trainer(env, "tarl-consistent", SMALL, SMALL_SAC, seed=4, log=lambda *a: None, timing="phased")
     obs, _ = env.reset(seed=4)
     decided = record_calls(trainer.timing_taker, "act")
@@ -216,7 +218,7 @@ def test_the_phased_driver_holds_a_t_over_T_steps_by_eq_7_then_decides_again():
 
 
 def test_the_consistent_variant_executes_in_the_real_loop_what_its_imagination_executes():
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     trainer = tarl.Trainer(Recorder(env), "tarl-consistent", SMALL, SMALL_SAC, seed=5, log=lambda *a: None,
                            timing="phased")
     trainer.obs, _ = trainer.env.reset(seed=5)

@@ -3,7 +3,7 @@ Lattice-IDM's committed test cases case for case, seed by seed, through experime
 exercises.paired reads, marked privileged (it reads the env); its key names it for resuming, by round and by seed; a
 policy that draws random numbers is refused unless --stochastic, then marked; one that returns NaN or raises ends
 the run in one line naming the case. The comparison over seeds: paired() per seed and pooled, and the claims' test
-(bench/table3.py), checked by hand on made-up rows and against the claims table."""
+(analysis.claims, paired by seed), checked by hand on made-up rows and against the claims table."""
 import json
 import pickle
 import subprocess
@@ -123,25 +123,28 @@ def test_the_comparison_over_seeds_is_paired_per_seed_and_pooled_and_the_claims_
     # collides, times out) and 3 of seed 2 (times out): McNemar's p = 2 / 2^3
     assert lines[5].split()[:9] == ["pooled", "12", "0.750", "0.500", "3", "(1", "/", "2)", "0"]
     assert lines[5].split()[12:14] == ["0.25", "+0.250"]
-    # Welch: d = 0.25, both variances 0.0625 over 3 seeds, so 4 degrees of freedom: 0.25 +- 2.776 * 0.2041;
-    # ahead in seeds 0 and 2; sign flips: 4 of the 8 patterns reach |mean| 0.25; P(A > B) = 7 / 9
-    settle = table3.seeds_to_settle(0.25, 0.25, 0.25)
-    assert lines[6].startswith("over the 3 seeds, as bench/table3.py tests the paper's claims: it - the row +0.250 "
-                               f"[-0.317, +0.817] (Welch's 95 % CI): undecided, {settle} seeds per row would settle "
+    # paired by seed: differences 0.5, 0, 0.25, mean 0.25 and std 0.25, so t = sqrt 3 on 2 degrees of freedom,
+    # p = 1 - sqrt(3 / 5) = 0.23 and the 95 % CI 0.25 +- 4.303 * 0.1443; an effect of one std of the differences
+    # needs 10 seeds for 80 % power; ahead in seeds 0 and 2; sign flips: 4 of the 8 patterns reach |mean| 0.25;
+    # P(A > B) = 7 / 9
+    assert lines[6].startswith("over the 3 seeds, paired by seed as the paper's claims are tested: it - the row +0.250 "
+                               "[-0.371, +0.871] (paired t's 95 % CI, p 0.23): undecided, 10 seeds would settle "
                                "it; ahead in 2 of 3 seeds, sign-flip p 0.5; P(it > the row) 0.78 [") and len(lines) == 7
     assert own_agent.comparison({0: mine[0]}, {0: theirs[0]}, "TARL", np.random.default_rng(0))[2:] == [
         own_agent.versus(paired.paired(mine[0], theirs[0], np.random.default_rng(0)), "0")]  # one seed: no pooling
 
 
 def test_the_test_over_seeds_is_the_claims_test():
+    """On a claim's seeds, own_agent's test gives the claims table's numbers; its verdict is its own, unadjusted (the
+    table's is Holm's over its family)."""
     found = table3.load(ROOT / "results")
     claims = [c for c in table3.claim_rows(found) if c["key"] == "success_rate"]
     for c in claims:
         seeds = [{k: r["success_rate"]["mean"] for k, r in found[table3.DEFAULT][c["scenario"], algo].items()}
                  for algo in (c["a"], c["b"])]
-        mine = own_agent.seed_test(*seeds, table3.MARGIN["success_rate"], np.random.default_rng(0))
-        assert {k: mine[k] for k in ("n", "d", "ci", "ci90", "verdict", "settle", "wins", "sign_flip")} == {
-            k: c[k] for k in ("n", "d", "ci", "ci90", "verdict", "settle", "wins", "sign_flip")}
+        mine = own_agent.seed_test(*seeds, own_agent.MARGIN["success_rate"], np.random.default_rng(0), seeds=c["seeds"])
+        assert {k: mine[k] for k in ("seeds", "n", "d", "ci", "p", "tost", "wins", "sign_flip")} == {
+            k: c[k] for k in ("seeds", "n", "d", "ci", "p", "tost", "wins", "sign_flip")}
         assert mine["means"] == pytest.approx(c["means"]) and mine["improvement"][0] == c["improvement"][0]
 
 
@@ -159,9 +162,9 @@ def test_the_key_names_the_policy_for_resuming():
     ("nan_policy", 1, ["--stochastic"], "it returned [nan], not one finite acceleration [m/s^2]"),  # in a worker
     ("raising_policy", 0, [], "it raised ZeroDivisionError: the policy's own bug")])  # in the check before the run
 def test_a_policy_that_fails_ends_the_run_in_one_line_naming_the_case(policy, workers, stochastic, says, tmp_path):
-    proc = subprocess.run([sys.executable, "bench/own_agent.py", "--scenario", "roundabout", "--policy",
+    proc = subprocess.run([sys.executable, str(ROOT / "bench" / "own_agent.py"), "--scenario", "roundabout", "--policy",
                            f"test_own_agent:{policy}", "--seeds", "1", "--eval-rounds", "1", "--eval-cases", "2",
-                           "--workers", str(workers), "--out", str(tmp_path), *stochastic], cwd=ROOT,
+                           "--workers", str(workers), "--out", str(tmp_path), *stochastic], cwd=ROOT / "tests",
                           capture_output=True, text=True, timeout=120)
     name = policy.replace("_", "-")
     assert proc.returncode == 1 and "Traceback" not in proc.stdout + proc.stderr
