@@ -1,4 +1,6 @@
 """The distilled timing (beyond/distil.py, bench/distillation.py): the teacher's labels, the students, on the real simulator."""
+import argparse
+import json
 import subprocess
 import sys
 import tempfile
@@ -105,9 +107,11 @@ def test_the_features_are_what_the_ego_sees_and_the_privileged_truth(cases):
     assert routes[2 * i[0] + j[0], env.routes.index(env.sim.vehicle.getRouteID(h))] == 1.0
 
 
-def test_a_student_that_always_prefers_t2_drives_exactly_as_fixed_2(cases):
+@pytest.mark.parametrize("loss", distil.Student.LOSSES)
+def test_a_student_that_always_prefers_t2_drives_exactly_as_fixed_2(cases, loss):
+    """Either loss's student (advantages and a margin, or a decision's scores) whose network puts T = 2 first."""
     env, recorded = cases
-    student = distil.Student("A", world.OBS_DIM + 1)
+    student = distil.Student("A", world.OBS_DIM + 1, loss=loss)
     with torch.no_grad():
         last = student.net[-1]
         last.weight.zero_()
@@ -126,6 +130,19 @@ def test_advantages_regret_and_fit_by_hand(tmp_path):
     returns = np.array([[[10.0, 12.0], [11.0, 11.0], [0.0, 2.0], [11.0, 11.0]]])  # means 11, 11, 1, 11
     np.testing.assert_array_equal(distil.advantages(returns, cfg), [[0.0, 0.0, -10.0, 0.0]])
     np.testing.assert_array_equal(distil.regret(returns, [3], cfg), [10.0])
+    # the labels measured: T = 1 is +1 / +3 / +2 over T = 2 in the three futures, T = 3 a tie, T = 10 -5 in each
+    base = np.array([[10.0, 20.0, 30.0], [0.0, 0.0, 0.0]])
+    returns = np.stack([np.stack([b + [1, 3, 2], b, b, b - 5]) for b in base])
+    returns[1, 0] = [-1.0, -3.0, -2.0]  # the second decision: T = 1 -2 on the mean
+    # holding out future 0: futures 1, 2 choose T = 1 (+2.5), worth +1 in future 0; out 1: +1.5 chooses, +3 pays; out 2:
+    # +2, +2; the second decision keeps T = 2 (a tie with T = 3) each time
+    gain, expected = distil.replicated_gain(returns, cfg)
+    np.testing.assert_allclose(gain, [[1.0, 3.0, 2.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(expected, [[2.5, 1.5, 2.0], [0.0, 0.0, 0.0]])
+    for j in range(3):  # as the teacher itself would choose from the other futures
+        assert [best_candidate(cfg, row) for row in np.delete(returns, j, -1).mean(-1)] == [1, 2]
+    rel = distil.reliability(returns, cfg)  # T = 1: labels +2 and -2 (variance 8), s^2 = 1 each: noise 1 / 3
+    assert rel[1] == pytest.approx(1 - (1 / 3) / 8) and set(rel) == {1, 3, 10}
     # x > 0: T = 1 gains 20, else T = 10 gains 20; a student learns the rule and chooses by it
     rng = np.random.default_rng(0)
     x = rng.normal(size=(400, 3)).astype(np.float32)
@@ -153,43 +170,116 @@ def test_a_bad_student_is_one_line_before_any_work(tmp_path):
         assert ("not a student" if "=" in spec else "distilled=PATH") in last
 
 
+DIMS = dict(eq5=world.OBS_DIM + 1, deployed=5, routes=13 * 12, kinematics=36)
+
+
+def write_chunk(keep: Path, k: int, rng: np.random.Generator, n: int = 40):
+    """A chunk of made-up labels in the teacher's layout, 10 cases of 4 decisions: T = 1 gains 20 over the others
+    where the first input is high, loses 20 elsewhere."""
+    x = {g: rng.random((n, d)).astype(np.float32) for g, d in DIMS.items()}
+    returns = rng.normal(50.0, 1.0, (n, 4, 3)).astype(np.float32)
+    returns[:, 0] += np.where(x["eq5"][:, :1] > 0.5, 20.0, -20.0)
+    T = np.array([RolloutConfig().candidates[i] for i in returns.mean(-1).argmax(1)])
+    meta = dict(scenario="roundabout", actor_seed=0, chunk=k)
+    np.savez_compressed(keep / f"chunk{k:03d}.npz", meta=json.dumps(meta), returns=returns, T=T,
+                        case=np.arange(n) // 4, **x)
+
+
 def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
     """Five chunks of made-up labels (the teacher's layout): chunk 4 is held out, three students and a curve result."""
-    rng, cfg = np.random.default_rng(0), RolloutConfig()
+    rng = np.random.default_rng(0)
     keep = distillation.folder("roundabout", 0, tmp_path)
     keep.mkdir(parents=True)
-    dims = dict(eq5=world.OBS_DIM + 1, deployed=5, routes=13 * 12, kinematics=36)
-
-    def write(keep, k, n=40):
-        x = {g: rng.random((n, d)).astype(np.float32) for g, d in dims.items()}
-        returns = rng.normal(50.0, 1.0, (n, 4, 3)).astype(np.float32)
-        returns[:, 0] += np.where(x["eq5"][:, :1] > 0.5, 20.0, -20.0)  # T = 1 pays where the first input is high
-        T = np.array([cfg.candidates[i] for i in returns.mean(-1).argmax(1)])
-        meta = dict(scenario="roundabout", actor_seed=0, chunk=k)
-        np.savez_compressed(keep / f"chunk{k:03d}.npz", meta=__import__("json").dumps(meta), returns=returns, T=T,
-                            case=np.arange(n) // 4, **x)
     for k in range(5):
-        write(keep, k)
-    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "C-routes"])
-    st = __import__("json").loads((tmp_path / "roundabout-s0" / "students.json").read_text())
+        write_chunk(keep, k, rng)
+    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "C-routes",
+                       "--loss", "mse"])
+    st = json.loads((tmp_path / "roundabout-s0" / "students.json").read_text())
     assert st["held_out_decisions"] == 40 and st["train_chunks"] == [0, 1, 2, 3]
     assert [c["cases"] for c in st["curve"]["A"]] == [10, 10, 20, 40]  # 1/8 and 1/4 of 4 chunks: at least one
     assert st["results"]["A"]["regret"] < st["baseline"]["T = 2 always"]["regret"]
     student = distil.Student.load(tmp_path / "roundabout-s0" / "C-routes.pt")
-    assert student.inputs == "C-routes" and student.mean.numel() == dims["eq5"] + 5 + 36
+    assert student.inputs == "C-routes" and student.mean.numel() == DIMS["eq5"] + 5 + 36 and student.loss == "mse"
+    # trained for the decision (the default loss), on the same held-out chunk: chunk 3 validates, 0-2 train
+    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "B"])
+    st = json.loads((tmp_path / "roundabout-s0-decision" / "students.json").read_text())
+    assert st["loss"] == "decision" and st["validation_chunks"] == [3] and st["held_out_decisions"] == 40
+    assert [c["cases"] for c in st["curve"]["A"]] == [10, 10, 20, 30]
+    assert set(st["results"]["A"]["gate"]) >= {"regret", "default_regret", "low", "high", "passes"}
+    assert len(st["stopping"]["A"]["validation_regret"]) > st["stopping"]["A"]["epoch"]  # epoch 0: before training
+    assert distil.Student.load(tmp_path / "roundabout-s0-decision" / "B.pt").loss == "decision"
+    lower = distillation.lower_regret(tmp_path / "roundabout-s0-decision")
+    assert st["results"][lower]["regret"] == min(st["results"][s]["regret"] for s in "AB")
     # the report: a student "evaluated" as TARL itself (its committed eval.json) ties TARL and does not pass
     (tmp_path / "roundabout-s0" / "eval-A.json").write_text((HERE / "results/runs/roundabout-tarl-s0/eval.json").read_text())
-    text = distillation.report(__import__("argparse").Namespace(out=tmp_path, actor_seed=0))
+    text = distillation.report(argparse.Namespace(out=tmp_path, actor_seed=0))
     assert "| TARL | 2 | " in text and "| 0 / 0 | 1 |" in text
     assert "student A **does not pass**" in text and "student C-routes" in text
+    assert "## The teacher's labels" in text and "| roundabout | 0 | the teacher | 200 (50) |" in text
+    assert "| roundabout | 0 | decision | before | A | 40 (10) |" in text
+    assert "## roundabout, actor seed 0, students trained for their decision" in text
     # a DAgger round: the states student A drove to join the labels, and its students go apart
     (dagger := distillation.folder("roundabout", 0, tmp_path, "A")).mkdir(parents=True)
-    write(dagger, 5)
-    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "--dagger", "A"])
-    st = __import__("json").loads((tmp_path / "roundabout-s0-dagger" / "students.json").read_text())
-    assert st["train_chunks"] == [0, 1, 2, 3, 5] and st["held_out_decisions"] == 40
-    text = distillation.report(__import__("argparse").Namespace(out=tmp_path, actor_seed=0))
+    write_chunk(dagger, 5, rng)
+    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "--dagger", "A",
+                       "--loss", "mse"])
+    st = json.loads((tmp_path / "roundabout-s0-dagger" / "students.json").read_text())
+    assert st["train_chunks"] == [0, 1, 2, 3, 5] and st["held_out_decisions"] == 40 and st["dagger"] == ["A"]
+    text = distillation.report(argparse.Namespace(out=tmp_path, actor_seed=0))
     assert "## roundabout, actor seed 0, after one DAgger round" in text
+    assert "| roundabout | 0 | student A drove (DAgger) | 40 (10) |" in text
+
+
+def test_the_gate_refuses_a_student_that_does_not_beat_the_constant(tmp_path, capsys):
+    cfg = RolloutConfig()
+    returns = np.zeros((8, 4, 3))
+    returns[:, 0] = [[1.0, -1.0, 3.0]] * 4 + [[-3.0, -2.0, -1.0]] * 4  # T = 1: +1 in the first 4 decisions, -2 after
+    cases = np.arange(8)  # a case per decision
+    stay = distil.gate(returns, [2] * 8, cases, cfg)
+    assert stay["diff"] == 0 and not stay["passes"]  # the constant does not beat itself
+    assert not distil.gate(returns, [1] * 8, cases, cfg)["passes"]  # -2 on half, +1 on half: worse on the mean
+    better = distil.gate(returns, [1] * 4 + [2] * 4, cases, cfg)
+    assert better["diff"] == pytest.approx(-0.5) and better["high"] < 0 and better["passes"]
+    one_case = distil.gate(returns, [1] * 4 + [2] * 4, np.array([0, 0, 0, 0, 1, 2, 3, 4]), cfg)
+    assert one_case["diff"] == better["diff"] and not one_case["passes"]  # the gains all of one case of five: cases
+    # evaluate: a student that does not pass is never played (the evaluation itself is not reached)
+    rng = np.random.default_rng(1)
+    keep = distillation.folder("roundabout", 0, tmp_path)
+    keep.mkdir(parents=True)
+    for k in range(5):
+        write_chunk(keep, k, rng)
+    students = distillation.students_dir(tmp_path, "roundabout", 0, False, "decision")
+    students.mkdir(parents=True)
+    student = distil.Student("A", DIMS["eq5"], loss="decision")
+    with torch.no_grad():
+        student.net[-1].weight.zero_()
+        student.net[-1].bias.copy_(torch.tensor([0.0, 5.0, 0.0, 0.0]))  # T = 2 always: the constant itself
+    student.save(students / "A.pt")
+    (students / "students.json").write_text(json.dumps(dict(loss="decision", dagger=[], results={"A": {}})))
+    distillation.main(["evaluate", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A"])
+    assert "student A: held-out regret" in capsys.readouterr().out and not (students / "eval-A.json").exists()
+
+
+def test_the_decision_loss_picks_the_larger_mean_advantage():
+    """Where the first input is high T = 3 gains +1 on the mean (+4 and -2 in turn), T = 1 a steady +0.5; elsewhere
+    every T but the default loses on the mean, though T = 3 gains +2 on every other decision: the default is chosen."""
+    cfg = RolloutConfig()  # candidates 1, 2, 3, 10
+
+    def labels(n, seed):
+        x = np.random.default_rng(seed).normal(size=(n, 2)).astype(np.float32)
+        high, turn = x[:, 0] > 0, np.arange(n) % 2 == 0
+        adv = np.zeros((n, 4))
+        adv[:, 0] = np.where(high, 0.5, -0.5)
+        adv[:, 2] = np.where(high, np.where(turn, 4.0, -2.0), np.where(turn, 2.0, -4.0))
+        adv[:, 3] = -3.0
+        return x, adv
+
+    x, adv = labels(400, 0)
+    student, stop = distil.fit_decision(x, adv, "A", cfg, validation=labels(200, 1), batch=32)
+    assert student.loss == "decision" and stop["validation_regret"][stop["epoch"]] < stop["validation_regret"][0]
+    assert student.choose(np.array([[1.5, 0.0], [-1.5, 0.0]], np.float32)).tolist() == [3, 2]
+    scores = torch.tensor([[0.0, 50.0, 0.0, 0.0], [50.0, 0.0, 0.0, 0.0]])  # a sure T = 2, a sure T = 1
+    assert float(distil.decision_loss(scores, torch.tensor([[1.0, 0.0, 2.0, 3.0]] * 2))) == pytest.approx(-0.5)
 
 
 def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):
