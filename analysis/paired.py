@@ -18,7 +18,8 @@ Pooled: McNemar on the seeds' discordant pairs summed; the bootstrap resamples e
 averages the seeds. Both treat the seeds' models as fixed: two trained policies on the same cases, not
 two methods; three trained models say little about a fourth. Over seeds, the question a claim "A is
 better than B" asks: the seeds' mean differences and an exact sign-flip test on them (with n seeds its p
-is at least 2 / 2^n: 0.25 for 3; docs/RESULTS.md's claims table shows it beside its Welch test).
+is at least 2 / 2^n: 0.25 for 3; docs/RESULTS.md's claims table shows it beside its paired t-test,
+analysis/claims.py).
 Numpy and scipy.stats only: no simulation.
 """
 from __future__ import annotations
