@@ -22,8 +22,9 @@ loop of its own. For each of --seeds it plays the R rounds x C test cases of tha
 eval-rounds/, finished seeds in their eval.json (tarl.py's layout, where exercises.paired finds it with --runs runs
 results/runs), and the same command plays only what is left. It prints each seed's row beside Table 3's rows of
 that seed and scenario (results/runs), then compares it with TARL and with the best row: case by case for each seed
-and pooled (analysis.paired.paired), and over the seeds with bench/table3.py's test of the paper's claims
-(seed_test). A policy that raises or returns a bad action (NaN, another shape) ends the run in one line naming the case.
+and pooled (analysis.paired.paired), and over the seeds with the test of the paper's claims, paired by seed
+(analysis.claims.seed_test). A policy that raises or returns a bad action (NaN, another shape) ends the run in one
+line naming the case.
 
 In Python: evaluate_policy(policy, "roundabout", seeds=(0, 1, 2), name="mine") (sys.path: the repository and bench/).
 """
@@ -50,7 +51,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import experiment  # noqa: E402
 from analysis.paired import BOOTSTRAP, find_row, p_text, paired  # noqa: E402
-from table3 import MARGIN, MOST_SEEDS, NAMES, TABLE_ROWS, seed_test  # noqa: E402
+from analysis.claims import MARGIN, MOST_SEEDS, seed_test  # noqa: E402
+from table3 import NAMES, TABLE_ROWS  # noqa: E402
 from tarl import Driver  # noqa: E402
 from world import OBS_DIM, SCENARIOS, DrivingEnv, EnvConfig  # noqa: E402
 
@@ -349,8 +351,9 @@ def versus(r: dict, name: str) -> str:
 
 def comparison(mine: dict, theirs: dict, label: str, rng: np.random.Generator) -> list[str]:
     """Mine against one row of Table 3 (label), both {seed: row of eval.json}, on the cases both played: each seed's
-    paired() line and, over several seeds, the pooled one and the claims' seed_test of each seed's two successes
-    (paired()'s, on those cases: eval.json's means when both played them all)."""
+    paired() line and, over several seeds, the pooled one and the claims' seed_test (analysis.claims) of each seed's
+    two successes, paired by seed (paired()'s, on those cases: eval.json's means when both played them all): one
+    comparison, its verdict at 0.05 unadjusted (the claims tables adjust theirs over their family)."""
     lines, results = [f"against {label}:", HEADER], {}
     for seed in mine:
         try:
@@ -363,11 +366,11 @@ def comparison(mine: dict, theirs: dict, label: str, rng: np.random.Generator) -
         return lines
     lines.append(versus(paired([mine[s] for s in results], [theirs[s] for s in results], rng), "pooled"))
     t = seed_test(*({s: r[k] for s, r in results.items()} for k in ("mine", "other")), MARGIN["success_rate"], rng)
-    settle = f", {t['settle'] or f'> {MOST_SEEDS:,}'} seeds per row would settle it" * (t["verdict"] == "undecided")
-    return lines + [f"over the {len(results)} seeds, as bench/table3.py tests the paper's claims: it - the row "
-                    f"{t['d']:+.3f} [{t['ci'][0]:+.3f}, {t['ci'][1]:+.3f}] (Welch's 95 % CI): {t['verdict']}{settle}; "
-                    f"ahead in {t['wins'][0]} of {t['wins'][1]} seeds, sign-flip p {t['sign_flip']:.2g}; "
-                    "P(it > the row) {:.2f} [{:.2f}, {:.2f}]".format(*t["improvement"])]
+    settle = f", {t['settle'] or f'> {MOST_SEEDS:,}'} seeds would settle it" * (t["verdict"] == "undecided")
+    return lines + [f"over the {len(results)} seeds, paired by seed as the paper's claims are tested: it - the row "
+                    f"{t['d']:+.3f} [{t['ci'][0]:+.3f}, {t['ci'][1]:+.3f}] (paired t's 95 % CI, p {p_text(t['p'])}): "
+                    f"{t['verdict']}{settle}; ahead in {t['wins'][0]} of {t['wins'][1]} seeds, sign-flip p "
+                    f"{t['sign_flip']:.2g}; P(it > the row) " + "{:.2f} [{:.2f}, {:.2f}]".format(*t["improvement"])]
 
 
 def beside(row: dict, table: dict, scenario: str, seed: int) -> str:
@@ -387,10 +390,10 @@ def report(rows: dict, tables: dict) -> str:
              "the seeds' discordant pairs summed): where only one arrives (how the other failed: collision / timeout), "
              f"McNemar's exact p, the success difference with a 95 % interval from {BOOTSTRAP:,} bootstrap resamples "
              "of the cases within each round (analysis.paired.paired: why the case); over the seeds, on each seed's "
-             "two successes, bench/table3.py's test of the paper's claims: Welch's 95 % CI and its verdict "
-             f"(equivalent: the 90 % CI within +-{MARGIN['success_rate']}; if undecided, the seeds per row that would "
-             "settle it), the seeds it is ahead in with the exact sign-flip p, P(it > the row) with its 95 % interval "
-             "(rliable's stratified bootstrap)"]
+             "two successes, the test of the paper's claims (analysis.claims.seed_test): the paired t's 95 % CI, its p "
+             f"and its verdict at 0.05, unadjusted (equivalent: within +-{MARGIN['success_rate']} by two one-sided "
+             "tests; if undecided, the seeds that would settle it), the seeds it is ahead in with the exact sign-flip "
+             "p, P(it > the row) with its 95 % interval (rliable's stratified bootstrap)"]
     for algo in dict.fromkeys(("tarl", best)):
         label = tables[seeds[0]][algo]["label"] + " (best)" * (algo == best != "tarl")
         lines += comparison(rows, {seed: tables[seed][algo] for seed in seeds}, label, rng)

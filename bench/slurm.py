@@ -1,27 +1,37 @@
-"""Table 3's grid on a Slurm cluster: one array task per unfinished cell, each resumable (bench/table3.py's cells).
+"""Table 3's grid on a Slurm cluster, behind `python bench/table3.py --slurm`: one array task per unfinished cell,
+each resumable. `python bench/slurm.py ARGS` is `python bench/table3.py --slurm ARGS`; the options (the grid's,
+declared once for every path to a cell, and Slurm's): `python bench/table3.py --help`.
 
-    python bench/slurm.py --submit                         # every unfinished cell of the grid, 1 CPU and 2 h each
-    python bench/slurm.py --seeds 0 --steps 500000 --time 4:00:00 --submit   # the paper's budget: 1.7-3 h a cell
-    python bench/slurm.py --algos tarl sac --seeds 0       # print the job file
-    python bench/slurm.py --write grid.sbatch              # write it, to read or to sbatch with options of your own
-    python bench/slurm.py --collect                        # once the tasks are done: results/table3.md
+    python bench/table3.py --slurm --submit               # every unfinished cell of the grid, 1 CPU and 2 h each
+    python bench/table3.py --slurm --seeds 0 --steps 500000 --time 4:00:00 --submit   # the paper's budget: 1.7-3 h
+    python bench/table3.py --slurm --algos tarl sac --seeds 0     # print the job file
+    python bench/table3.py --slurm --write grid.sbatch    # write it, to read or to sbatch with options of your own
+    python bench/table3.py --collect-only                 # the table, once; it names the cells not finished yet
+    python bench/table3.py --slurm --algos sac --seeds 0 --steps 3000 --rounds 1 --cases 10 --submit   # a trial
 
 Run it on the cluster's login node from the repository, with the python that has the requirements: the job file
 names that python and this folder, which the compute nodes must see (a shared disk, as the cells' run directories
 and results/ are). Each task runs its cell's own command (table3.py's, `--resume` where the run directory has a
-ckpt.pt, 1 torch thread per CPU of the task) and, when the cell finishes, copies its files to results/runs/CELL
-as table3.py does; it never commits: collect, look and commit yourself.
+ckpt.pt, 1 torch thread per CPU of the task) and, when the cell finishes, copies the cell's own files to
+results/runs/CELL, nothing else: no table (results/table3.md is tracked, and rewriting it would record every later
+cell's code as COMMIT-dirty) and no commit (--commit, --threads and --jobs are refused with --slurm). Once the tasks
+are done, --collect-only builds the table; look, and commit yourself. A trial (other than Table 3's 10 rounds x 200
+cases) goes to runs/trial/, not results/ (bench/table3.py's docstring).
 
 A stopped task loses less than a checkpoint interval (tarl.TrainConfig.checkpoint_every):
 - scancel, a time limit reached, a pre-emption: Slurm sends SIGTERM to every process of the task, then SIGKILL
   after the cluster's KillWait (or pre-emption GraceTime); the cell saves its checkpoint on SIGTERM. A pre-empted
-  task is requeued by Slurm (`--requeue`); a cancelled one resumes when you submit again.
+  task is requeued by Slurm (`--requeue`); a cancelled one resumes when you submit the same command again (its
+  log.txt says so, below tarl.py's own "--resume" line, which is for a cell run by hand).
 - the time limit, ahead: `--signal=B:USR1@360` warns the task (its main process alone) 6 min before its limit
   (Slurm may warn up to a minute earlier); it stops the cell, which saves within 5 min (table3.SAVE_WAIT), and
   requeues itself (`scontrol requeue`): the task starts again later (Slurm holds a requeued job a while, 2 min by
   default) and resumes the cell. So a cell longer than --time still ends, in several stretches.
+- Slurm itself gone (a reboot, its daemons stopped between two working days): start it again and submit the same
+  command. Finished cells (their eval.json in results/runs) are not submitted, started ones resume from their
+  ckpt.pt; a task that Slurm recovers and requeues by itself beside them finds its cell taken (the run directory's
+  lock) or done, and ends at once.
 """
-import argparse
 import os
 import re
 import shlex
@@ -35,9 +45,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from table3 import (ABLATIONS, ROOT, RUN, SAVE_WAIT, SCENARIOS, STEPS, cell_name, cells, claim, collect,  # noqa: E402
-                    command, publish, stamp)
-import experiment  # noqa: E402  (table3 puts the repository on sys.path)
+import table3  # noqa: E402
+from table3 import ROOT, SAVE_WAIT, cell_name, cells, claim, command, done, publish, stamp  # noqa: E402
 
 WARN = SAVE_WAIT + 60  # [s] the time limit's warning: the cell's time to save, and a minute to requeue the task
 
@@ -62,14 +71,22 @@ def check_slurm(partition: str | None):
             raise SystemExit(f"--partition {partition}: not a partition of this cluster ({', '.join(known) or 'none'})")
 
 
+def grid_flags(args) -> str:
+    """The grid's options that every cell of the job shares, as table3.py reads them."""
+    flags = [f"--steps {args.steps}", f"--rounds {args.rounds}", f"--cases {args.cases}",
+             f"--work {shlex.quote(str(args.work))}", f"--results {shlex.quote(str(args.results))}"]
+    return " ".join(flags + [f"--step-one {args.step_one}"] * (args.step_one is not None))
+
+
+def cell_flags(scenario, algo, seed) -> str:
+    return f"--scenarios {scenario} --algos {algo} --seeds {seed}"
+
+
 def job_file(todo: list, args) -> str:
-    """The sbatch array job: task i runs cell todo[i] through this module's --task (the cell's own command)."""
-    keep = [f"--steps {args.steps}", f"--rounds {args.rounds}", f"--cases {args.cases}",
-            f"--work {shlex.quote(str(args.work))}", f"--results {shlex.quote(str(args.results))}"]
-    keep += [f"--step-one {args.step_one}"] * (args.step_one is not None)
+    """The sbatch array job: task i runs cell todo[i] through table3.py's --slurm --task (the cell's own command)."""
     return "\n".join([
         "#!/bin/bash",
-        "# Table 3 cells as a Slurm array job, written by bench/slurm.py: one task per cell of CELLS, resumable.",
+        "# Table 3 cells as a Slurm array job, by bench/table3.py --slurm: a task per cell of CELLS, each resumable.",
         "#SBATCH --job-name=tarl-grid",
         f"#SBATCH --array=0-{len(todo) - 1}",
         f"#SBATCH --cpus-per-task={args.cpus_per_task}",  # the cell's torch threads and evaluation workers
@@ -81,10 +98,11 @@ def job_file(todo: list, args) -> str:
         "#SBATCH --open-mode=append",  # a requeued task adds to its output file
         f"#SBATCH --output={args.work}/slurm-%A_%a.out",
         "CELLS=(",
-        *[f'  "--scenarios {scenario} --algos {algo} --seeds {seed}"' for scenario, algo, seed in todo],
+        *[f'  "{cell_flags(*cell)}"' for cell in todo],
         ")",
         f"cd {shlex.quote(str(ROOT))}",
-        f"exec {shlex.quote(sys.executable)} bench/slurm.py --task ${{CELLS[$SLURM_ARRAY_TASK_ID]}} {' '.join(keep)}",
+        f"exec {shlex.quote(sys.executable)} bench/table3.py --slurm --task ${{CELLS[$SLURM_ARRAY_TASK_ID]}} "
+        f"{grid_flags(args)}",
         ""])
 
 
@@ -96,11 +114,29 @@ def submit(path: Path) -> str:
     return done.stdout.strip().split(";")[0]
 
 
+def queued(work: Path) -> dict[str, list[str]]:
+    """The array tasks of WORK/grid.sbatch (the job file --submit writes) still in Slurm's queue, by state: {"PENDING":
+    ["12_3", ...], "RUNNING": [...]}; {} where this work directory was never submitted or no squeue answers."""
+    job = work / "grid.sbatch"
+    if not job.exists() or shutil.which("squeue") is None:
+        return {}
+    try:
+        lines = subprocess.run(["squeue", "-h", "-r", "-o", "%i|%T|%o"], capture_output=True, text=True,
+                               timeout=30).stdout.splitlines()
+    except subprocess.TimeoutExpired:
+        return {}
+    tasks = {}
+    for task, state, script in (line.split("|", 2) for line in lines if line.count("|") >= 2):
+        if script == str(job):
+            tasks.setdefault(state, []).append(task)
+    return tasks
+
+
 def run_task(cell: tuple, args):
     """One array task: the cell's own command, resumed from its ckpt.pt if it has one, its output in the cell's
-    log.txt between the grid's stamps (table3.wall_times); published to results/runs when it finishes. Slurm's kill
-    reaches the cell too, which saves: this process waits for it. The warning (USR1) reaches this process alone: it
-    stops the cell and, once the cell has saved, requeues the task."""
+    log.txt between the grid's stamps (table3.wall_times); its files published to results/runs when it finishes.
+    Slurm's kill reaches the cell too, which saves: this process waits for it, and writes in the log how it resumes.
+    The warning (USR1) reaches this process alone: it stops the cell and, once the cell has saved, requeues the task."""
     name = cell_name(*cell, args.steps, args.step_one)
     task = "_".join(os.environ.get(key, "?") for key in ("SLURM_ARRAY_JOB_ID", "SLURM_ARRAY_TASK_ID"))
     if (claimed := claim(cell, args)) is None:
@@ -128,63 +164,41 @@ def run_task(cell: tuple, args):
         code = cell_proc.wait()
         how = "finished" if code == 0 else "interrupted" if stops else "FAILED"
         stamp(log, f"{how} after {(time.time() - start) / 60:.1f} min, exit code {code}, {beside}")
+        if how == "interrupted":  # tarl.py's line above says --resume: on Slurm, the queue resumes the cell
+            again = ("its task requeues itself and resumes it" if "warned" in stops else
+                     "unless Slurm requeues its task (as after a pre-emption), submit the same command again: the "
+                     "grid's, or this cell's alone: python bench/table3.py --slurm "
+                     f"{cell_flags(*cell)} {grid_flags(args)} --submit")
+            log.write(f"# on Slurm, this cell resumes from its checkpoint: {again}\n")
     print(f"{name}: {how}, exit code {code} (its log: {out / 'log.txt'})", flush=True)
     if code == 0:
-        return publish(*cell, args)
+        return publish(*cell, args)  # its own files: no table, no commit
     if "warned" in stops:
         print(f"{name}: saved; requeueing task {task}, which resumes the cell when it starts again", flush=True)
+        before = len(stops)
         done = subprocess.run(["scontrol", "requeue", task], capture_output=True, text=True)  # Slurm ends this task
-        if done.returncode != 0:
-            raise SystemExit(f"{name}: could not requeue ({' '.join(done.stderr.split())}): submit again to resume it")
+        if done.returncode != 0 and "killed" not in stops[before:]:  # killed now: requeued, Slurm ends this task
+            why = " ".join(done.stderr.split()) or f"exit code {done.returncode}"
+            raise SystemExit(f"{name}: could not requeue ({why}): submit the same command again to resume it")
         return
     raise SystemExit(code)
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
-    p.add_argument("--steps", type=int, default=STEPS, help="training steps of every learned row (as table3.py's)")
-    p.add_argument("--step-one", type=int, help="steps of Alg. 1's step 1 in every cell (as table3.py's)")
-    p.add_argument("--rounds", type=int, default=10)
-    p.add_argument("--cases", type=int, default=200)
-    p.add_argument("--work", type=Path, default=ROOT / "runs" / "grid", help="the cells' run directories and the "
-                   "tasks' output files (slurm-JOB_TASK.out), on a disk the compute nodes share")
-    p.add_argument("--results", type=Path, default=ROOT / "results")
-    p.add_argument("--cpus-per-task", type=int, default=1, help="each task's CPUs, the cell's torch threads and "
-                   "evaluation workers: one-thread cells side by side use the cores best")
-    p.add_argument("--time", default="2:00:00", help="each task's time limit (sbatch --time; default 2 h: a "
-                   "10^5-step cell at one thread with margin; a 5 x 10^5-step one takes 1.7-3.0 h). A longer cell is "
-                   "warned, saves, and its task requeued resumes it")
-    p.add_argument("--partition", help="the cluster's partition (default: the cluster's default partition)")
-    what = p.add_mutually_exclusive_group()
-    what.add_argument("--submit", action="store_true", help="submit the array job (its file: WORK/grid.sbatch)")
-    what.add_argument("--write", type=Path, metavar="FILE", help="write the array job's file (to sbatch yourself)")
-    what.add_argument("--collect", action="store_true", help="rebuild results/table3.md from the finished cells")
-    what.add_argument("--task", action="store_true", help="run the one selected cell as an array task (the job "
-                      "file's command)")
-    args = p.parse_args(argv)
-    args.work, args.results, args.commit, args.readme = args.work.resolve(), args.results.resolve(), False, False
-    if args.step_one is not None and not 0 < args.step_one < args.steps:
-        p.error("--step-one must be above 0 and below --steps")
-    if args.step_one is not None and (plain := [a for a in args.algos if not experiment.ROWS[a].step_one]):
-        p.error(f"--step-one: {', '.join(plain)} have no step 1")
+def run(p, args):
+    """table3.py --slurm, its command line parsed and checked (table3.settle): the unfinished cells' array job
+    (printed, written or submitted), or --task's one cell. Bad input is one line, before any work."""
     if args.cpus_per_task < 1:
         p.error("--cpus-per-task must be at least 1")
     if (limit := seconds(args.time)) is None or limit < 2 * WARN:
         p.error(f"--time {args.time}: give a Slurm time limit (M, H:M:S, D-H:M, ...) of at least {2 * WARN // 60} "
                 f"min: a task is warned {WARN // 60} min before its limit to save and requeue itself")
-    if args.collect:
-        return print(collect(args))
     selected = cells(args.algos, args.seeds, args.scenarios)
     if args.task:
         if len(selected) != 1:
             p.error("--task runs one cell: give one scenario, algo and seed")
         return run_task(selected[0], args)
     check_slurm(args.partition)
-    todo = [c for c in selected
-            if not (args.results / "runs" / cell_name(*c, args.steps, args.step_one) / "eval.json").exists()]
+    todo = [c for c in selected if not done(c, args)]
     if not todo:
         raise SystemExit(f"no unfinished cell: the {len(selected)} selected have their eval.json in "
                          f"{args.results / 'runs'}; nothing to submit")
@@ -198,7 +212,12 @@ def main(argv=None):
     job = submit(path)
     print(f"submitted array job {job}: {len(todo)} task(s), one per unfinished cell; their output: "
           f"{args.work}/slurm-{job}_TASK.out, their cells' logs: {args.work}/CELL/log.txt. Once they are done: "
-          f"python bench/slurm.py --collect")
+          f"{table3.collect_command(args)}")
+
+
+def main(argv=None):
+    """`python bench/slurm.py ARGS`: `python bench/table3.py --slurm ARGS`."""
+    return table3.main(["--slurm", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

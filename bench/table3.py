@@ -1,24 +1,39 @@
-"""Table 3 of the paper as a grid: every row x both scenarios x seeds, resumable cell by cell.
+"""Table 3 of the paper as a grid: its rows and TARL's two ablations x both scenarios x seeds, resumable cell by cell.
 
-    python bench/table3.py                    # run or resume the grid, 2 cells side by side
-    python bench/table3.py --print-commands   # one command per cell, for a scheduler (README)
+    python bench/table3.py                    # run or resume the grid here, 2 cells side by side, 1 thread each
+    python bench/table3.py --commit           # the same, and a git commit in this repository per finished cell
+    python bench/table3.py --print-commands   # one command per unfinished cell, for a scheduler of your own
     python bench/table3.py --slurm --submit   # the unfinished cells as a Slurm array job (bench/slurm.py)
-    python bench/table3.py --collect-only     # rebuild results/table3.md from results/runs/
+    python bench/table3.py --collect-only     # build results/table3.md from results/runs/; names unfinished cells
     python bench/table3.py --collect-only --readme   # and the tables in README.md and docs/RESULTS.md
     python bench/table3.py --collect-only --extra runs/roundabout-sb3-sac-s0/eval.json   # your own agent's rows too
+    python bench/table3.py --algos sac --seeds 0 --steps 3000 --rounds 1 --cases 10   # a trial: runs/trial/
 
-A cell is one `python tarl.py --scenario S --algo A --seed K` run in runs/grid/S-A-sK (its
-checkpoints), evaluated on the fixed test cases of seed K; TARL's cell is the default command, which
-also evaluates Lattice-IDM and TARL's step-1 model on the same cases. When it finishes, its eval.json,
-train_log.csv, constraint_log.csv (safe-RL rows) and policy.pt go to results/runs/S-A-sK and, with
---commit, committed: an interruption loses at most the cells in progress, which resume from their
-checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
+The grid (--algos): Table 3's learned rows (tarl, sac, sac-lattice, sac-lag, sac-pid, ppo-lag, cpo) and TARL's two
+ablations (tarl-fixed-t, tarl-random-t); the other variants (beyond/variants.py) run only when named. Lattice-IDM has no
+cell of its own: TARL's cell is the default command, which also evaluates Lattice-IDM and TARL's step-1 model on the
+same cases, so `--algos lattice-idm` selects TARL's cell (and says so). A cell is one `python tarl.py --scenario S
+--algo A --seed K` run in runs/grid/S-A-sK (its checkpoints) with one torch thread (--threads; the committed cells ran
+one each, and every path to a cell has that default: here, --print-commands, --slurm's --cpus-per-task), evaluated on
+the fixed test cases of seed K. When it finishes, its own files (eval.json, train_log.csv, constraint_log.csv of the
+safe-RL rows, policy.pt, log.txt) go to results/runs/S-A-sK, and nothing else: the table, results/table3.md, is built
+once, by --collect-only or when a grid run here ends (a Slurm task never builds it: the file is tracked, and rewriting
+it while cells start would record their code as COMMIT-dirty). An interruption loses at most the cells in progress,
+which resume from their checkpoints. A cell whose results/runs/S-A-sK/eval.json exists is done and skipped.
+--commit (here only, never on Slurm) makes git commits in this repository: after each finished cell it rebuilds
+results/table3.md and runs `git add` and `git commit` on that file and the cell's results/runs/S-A-sK, nothing else.
+A trial, cells evaluated on other than Table 3's 10 rounds x 200 cases (--rounds, --cases), lands apart from the
+committed results unless --work or --results say otherwise: its run directories in runs/trial/grid, its finished
+cells and table in runs/trial (runs/CELL, table3.md), which git ignores; `rm -r runs/trial` removes it.
+The table's header says what its rows were evaluated on, from their eval.json (rounds x cases), and which rows
+differ if some do.
 The table reports each number as the mean +- std over seeds of each seed's mean over its rounds,
 beside the mean over seeds of the per-round std (Table 3's +-) and the paper's value, with the number of
 seeds (n) beside every row; a row of one seed shows its mean and per-round std, no +- over seeds. With
---readme it also writes docs/RESULTS.md's table of the paper's claims, each tested over whatever seeds its rows have
-(`claim_rows`: Welch's test by scipy.stats, docs/RESULTS.md, "How the numbers were made"), and the paired differences
-at the paper's budget with a 95 % interval over the cases resampled (analysis.paired.paired).
+--readme it also writes docs/RESULTS.md's tables of the paper's claims, one family a budget, each claim paired by seed
+on its planned seeds with Holm's correction over the family (`claim_rows`: analysis.claims, whose docstring states the
+rule), and the paired differences at the paper's budget with a 95 % interval over the cases resampled
+(analysis.paired.paired).
 --extra reads eval.json files of policies outside the paper (bench/own_agent.py's) as cells at the default budget, of
 their file's scenario and seed: each row is listed after Table 3's rows and the ablations as "LABEL (outside the
 paper)", with "-" in the paper's columns. Those tables are the user's, not the committed results: they go to stdout and
@@ -30,6 +45,7 @@ import fcntl
 import json
 import os
 import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -40,13 +56,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 import experiment  # noqa: E402
 import tarl  # noqa: E402
-from analysis import paired  # noqa: E402
+from analysis import claims, paired  # noqa: E402
 SCENARIOS = ("intersection", "roundabout")
 ROWS = ("tarl", "sac", "lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo")
 # TARL's cell is the default command: it evaluates Lattice-IDM (and TARL's step-1 model) on the same
@@ -80,6 +95,11 @@ PAPER = {"intersection": {"cpo": (0.769, 0.038, 11.901, 0.335), "ppo-lag": (0.73
 
 STEPS = tarl.TrainConfig.steps  # the default budget of every learned row
 DEFAULT = (STEPS, None)  # a budget: (training steps, steps of Alg. 1's step 1 or None for TrainConfig.sac_fraction's)
+GRID = (*RUN, *ABLATIONS[:2])  # the grid's default rows: Table 3's learned ones and TARL's two ablations
+ROUNDS, CASES = 10, 200  # Table 3's test of a cell: 10 rounds of 200 cases; any other is a trial
+TRIAL = ROOT / "runs" / "trial"  # a trial's results (runs/CELL, table3.md) and, in grid/, its run directories
+THREADS = 1  # a cell's torch threads and evaluation workers on every path to it, as the committed cells ran
+TIME_LIMIT = "2:00:00"  # a Slurm task's default --time: a 10^5-step cell at one thread, with margin
 
 
 def cell_name(scenario, algo, seed, steps, step_one=None) -> str:
@@ -107,16 +127,27 @@ def cells(algos, seeds, scenarios=SCENARIOS):
 def command(scenario, algo, seed, args, threads) -> list[str]:
     """The cell's command, run from the repository's root (paths relative to it where they can be)."""
     out = args.work / cell_name(scenario, algo, seed, args.steps, args.step_one)
-    shown = out.relative_to(ROOT) if out.is_relative_to(ROOT) else out
     cmd = ["python", "tarl.py", "--scenario", scenario, "--algo", algo, "--seed", str(seed), "--steps", str(args.steps),
-           "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", str(shown),
+           "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), "--out", shown(out),
            "--eval-rows", "all" if algo == "tarl" else "trained", "--threads", str(threads), "--workers", str(threads)]
     cmd += ["--step-one", str(args.step_one)] if args.step_one is not None else []
     return cmd + ["--resume"] * (out / "ckpt.pt").exists()
 
 
+def done(cell, args) -> bool:
+    """Is the cell finished: its eval.json published in RESULTS/runs/CELL?"""
+    return (args.results / "runs" / cell_name(*cell, args.steps, args.step_one) / "eval.json").exists()
+
+
+def shown(path: Path) -> str:
+    """A path as the commands print it: relative to the repository's root (their cwd) where it is inside."""
+    return str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)
+
+
 def publish(scenario, algo, seed, args):
-    """Copy a finished cell's small files to results/runs and commit them (--commit)."""
+    """Copy a finished cell's small files to RESULTS/runs/CELL: its own files, nothing else (the table is built once,
+    by --collect-only or at the end of a grid run here). With --commit (a grid run here, never a Slurm task) also
+    rebuild RESULTS/table3.md and commit both."""
     name = cell_name(scenario, algo, seed, args.steps, args.step_one)
     src, dst = args.work / name, args.results / "runs" / name
     dst.mkdir(parents=True, exist_ok=True)
@@ -125,8 +156,8 @@ def publish(scenario, algo, seed, args):
         if (src / file).exists():
             shutil.copy(src / file, dst / file)
     shutil.copy(src / "eval.json", dst / "eval.json")  # last: its presence marks the cell done
-    collect(args)
     if args.commit:
+        collect(args)
         commit([dst, args.results / "table3.md"], f"Table 3 grid: {algo} on the {scenario}, seed {seed}"
                + (f", {budget_text((args.steps, args.step_one))} steps" if (args.steps, args.step_one) != DEFAULT else ""))
 
@@ -170,7 +201,7 @@ def claim(cell, args):
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         return lock.close()
-    if (args.results / "runs" / name / "eval.json").exists():
+    if done(cell, args):
         return lock.close()
     return out, lock
 
@@ -360,7 +391,7 @@ def case_by_case(found: dict, against=(*ABLATIONS, "sac", "lattice-idm")) -> lis
 TABLE_ROWS = ("tarl", "tarl-step1", *ROWS[1:])  # TARL's step-1 model: from TARL's cell
 # The blocks that --readme writes, by NAME, wherever a `<!-- table3.py NAME -->` marker stands in README.md or
 # docs/RESULTS.md: (rows, kind). "side": both scenarios side by side with each row's seeds (RESULTS.md, "Beyond the
-# paper"); "paper": the same with Table 3's values beside ours, the best of Table 3's rows in bold and the ablations in
+# paper"); "paper": the same with Table 3's values beside ours, no bold (no test picks a best row) and the ablations in
 # italics (README.md's headline, docs/RESULTS.md's Table 3); "budget": the paper's budget on one
 # seed with TARL's paired differences; "claims": the paper's claims with their verdicts (RESULTS.md's top).
 README_ROWS = {"headline": ((*TABLE_ROWS, *ABLATIONS[:2]), "paper"), "results": (TABLE_ROWS, "paper"),
@@ -416,127 +447,123 @@ def budget_block(found: dict, algos, seed: int = 0, budget=PAPER_BUDGET) -> list
     return lines
 
 
-# The paper's claims that the claims table tests: (scenario, A, B, measure), "A does better than B" in the measure
-# (success: higher; crossing time: lower). Which way the paper orders each pair is read from PAPER; for TARL against
-# its ablations, which the paper does not run, it is the paper's thesis that learning when to act helps.
-CLAIMS = tuple((scenario, "tarl", other, "success_rate") for scenario in SCENARIOS for other in
-               ("lattice-idm", "sac-lattice", "sac-lag", "sac-pid", "ppo-lag", "cpo", *ABLATIONS[:2])) + tuple(
-    (scenario, "tarl", "lattice-idm", "crossing_time") for scenario in SCENARIOS)
-ALPHA = 0.05  # two-sided: a claim holds or fails where the 95 % CI of its difference excludes 0
-POWER = 0.8  # an undecided claim's seeds to settle it: those at which Welch's test finds its difference this often
-MARGIN = {"success_rate": 0.03}  # equivalence: the 90 % CI inside +-MARGIN (two one-sided tests at ALPHA each)
-MOST_SEEDS = 10_000  # seeds_to_settle looks no further
-
-
-def welch(a, b) -> dict:
-    """Welch's test of mean(a) - mean(b), a and b the seed means of two rows (scipy.stats.ttest_ind, equal_var=False):
-    the difference d and its 95 % and 90 % confidence intervals."""
-    test = stats.ttest_ind(a, b, equal_var=False)
-    return dict(d=float(np.mean(a) - np.mean(b)), ci=tuple(map(float, test.confidence_interval(1 - ALPHA))),
-                ci90=tuple(map(float, test.confidence_interval(1 - 2 * ALPHA))))
-
-
-def verdict(test: dict, margin: float | None) -> str:
-    """A claim's verdict from `welch` (+ in the claim's order): "holds" or "fails" where the 95 % CI excludes 0;
-    "equivalent within ±margin" where the 90 % CI lies inside ±margin (two one-sided tests; a measure without a
-    margin, crossing time, is never equivalent); otherwise "undecided"."""
-    (low, high), (low90, high90) = test["ci"], test["ci90"]
-    if low > 0 or high < 0:
-        return "holds" if low > 0 else "fails"
-    return f"equivalent within ±{margin}" if margin and -margin < low90 and high90 < margin else "undecided"
-
-
-def seeds_to_settle(d: float, s_a: float, s_b: float) -> int | None:
-    """The fewest seeds per row at which Welch's two-sided test at ALPHA finds a true difference d with POWER, the two
-    rows' stds over seeds (ddof = 1) being s_a and s_b: its power from the noncentral t (scipy.stats.nct) at the
-    Welch-Satterthwaite degrees of freedom. None beyond MOST_SEEDS."""
-    n = np.arange(2, MOST_SEEDS + 1)
-    var = s_a ** 2 + s_b ** 2
-    df, ncp = var ** 2 * (n - 1) / (s_a ** 4 + s_b ** 4), abs(d) / np.sqrt(var / n)
-    t = stats.t.ppf(1 - ALPHA / 2, df)
-    enough = n[stats.nct.sf(t, df, ncp) + stats.nct.cdf(-t, df, ncp) >= POWER]
-    return int(enough[0]) if len(enough) else None
-
-
-def improvement(a, b, rng: np.random.Generator, resamples: int = paired.BOOTSTRAP) -> tuple[float, float, float]:
-    """P(A > B), the probability of improvement as rliable reports it (Agarwal et al., NeurIPS 2021): the chance that
-    a run (seed) of A beats a run of B, ties counting 1/2 (Mann-Whitney's U / (n_a n_b)), with its 95 % percentile
-    interval from the stratified bootstrap: each row's runs resampled on their own within each task (here one: a
-    claim is one scenario). a, b: the seeds' values, + better."""
-    a, b = np.asarray(a), np.asarray(b)
-    prob = lambda x, y: (np.sign(x[..., :, None] - y[..., None, :]) + 1).mean(axis=(-2, -1)) / 2  # noqa: E731
-    boot = prob(a[rng.integers(len(a), size=(resamples, len(a)))], b[rng.integers(len(b), size=(resamples, len(b)))])
-    return float(prob(a, b)), *map(float, np.percentile(boot, [2.5, 97.5]))
-
-
-def seed_test(a: dict, b: dict, margin: float | None, rng: np.random.Generator) -> dict:
-    """A against B over seeds, the test of a claim (claim_rows) and of an outside policy against a row
-    (bench/own_agent.py), a and b the seeds' values {seed: value, + better}: n (seeds of each) and means; `welch`'s d
-    with its 95 % and 90 % CIs; the `verdict`; if undecided, the seeds per row that would settle it
-    (`seeds_to_settle`, at the observed spread, None beyond MOST_SEEDS); A's wins over the seeds both have, paired by
-    seed (a seed's rows met the same cases), with the exact sign-flip p of their differences
-    (analysis.paired.sign_flip); `improvement`: P(A > B) with its 95 % interval. Each row's seeds are taken in seed
-    order, whatever order the files were read in: a mean that ends in 5 prints as the order sums it."""
-    x, y = (np.array([seeds[k] for k in sorted(seeds)]) for seeds in (a, b))
-    both = np.array([a[k] - b[k] for k in sorted(a.keys() & b.keys())])
-    test = welch(x, y)
-    said = verdict(test, margin)
-    return {"n": (len(x), len(y)), "means": (x.mean(), y.mean()), **test, "verdict": said,
-            "settle": seeds_to_settle(test["d"], x.std(ddof=1), y.std(ddof=1)) if said == "undecided" else None,
-            "wins": (int((both > 0).sum()), len(both)), "sign_flip": paired.sign_flip(both),
-            "improvement": improvement(x, y, rng)}
-
-
-def claim_rows(found: dict, seed: int = 0, budget=PAPER_BUDGET) -> list[dict]:
-    """Each claim of CLAIMS with its tests at the default budget, over whatever seeds each row has (`seed_test` of
-    both rows' seed values, + better; the means as measured). At `budget`, seed `seed` alone and no verdict: both
-    values, their difference and the cases only A / only B arrives in (analysis.paired.paired). Differences are
-    signed so that + is the paper's order."""
-    out, rng = [], np.random.default_rng(0)
-    for scenario, a, b, key in CLAIMS:
+def claim_rows(found: dict, steps: int = STEPS) -> list[dict]:
+    """The family of claims at `steps` training steps (analysis.claims.FAMILIES) tested as one
+    (analysis.claims.family): each claim's rows' seed values at that budget, + better (a shorter crossing is
+    better), with its planned seeds (analysis.claims.planned); the means and differences as measured, signed so
+    that + is the claim's order. At a budget other than the default, also the cases only A / only B arrives in,
+    summed over the claim's paired seeds (analysis.paired.paired, seeded 0)."""
+    budget, rng = (DEFAULT if steps == STEPS else (steps, None)), np.random.default_rng(0)
+    cells, out = found.get(budget, {}), []
+    for scenario, a, b, key in claims.FAMILIES[steps]:
+        better = 1 if key == "success_rate" else -1
+        values = [{k: better * r[key]["mean"] for k, r in cells.get((scenario, algo), {}).items()
+                   if r[key]["mean"] is not None} for algo in (a, b)]
+        out.append(dict(a=values[0], b=values[1], planned=claims.planned(steps, scenario, a, b),
+                        margin=claims.MARGIN.get(key), name=f"{scenario}: {NAMES[a]} against {NAMES[b]}, {key}, "
+                                                             f"{budget_text(budget)} steps"))
+    tested = claims.family(out, rng)
+    rows = []
+    for (scenario, a, b, key), pair, r in zip(claims.FAMILIES[steps], out, tested):
+        better, column = (1, 0) if key == "success_rate" else (-1, 2)
         ref = PAPER[scenario]
-        better, column = (1, 0) if key == "success_rate" else (-1, 2)  # a shorter crossing is better
-        if b in ref:  # the paper's order: whichever of the two it has ahead
-            a, b = (a, b) if better * (ref[a][column] - ref[b][column]) >= 0 else (b, a)
-        seeds = [{k: better * r[key]["mean"] for k, r in found[DEFAULT][(scenario, algo)].items()} for algo in (a, b)]
-        test = seed_test(*seeds, MARGIN.get(key), rng)
-        long = [found[budget][(scenario, algo)][seed] for algo in (a, b)]
-        out.append({"scenario": scenario, "a": a, "b": b, "key": key,
-                    "paper": (ref[a][column], ref[b][column]) if b in ref else None, **test,
-                    "means": tuple(better * m for m in test["means"]), "cases": paired.paired(*long, rng),
-                    "long": better * (long[0][key]["mean"] - long[1][key]["mean"])})
-    return out
+        cases = None
+        if budget != DEFAULT:
+            long = [[cells[scenario, algo][k] for k in r["seeds"]] for algo in (a, b)]
+            cases = paired.paired(*long, rng)
+        rows.append({"scenario": scenario, "a": a, "b": b, "key": key, **r,
+                     "paper": (ref[a][column], ref[b][column]) if a in ref and b in ref else None,
+                     "paired_means": tuple(better * np.mean([pair[s][k] for k in r["seeds"]]) for s in "ab"),
+                     "means": tuple(better * m for m in r["means"]), "cases": cases})
+    return rows
+
+
+def claim_text(c: dict) -> tuple[str, int, str]:
+    """A claim's name in the table, its digits and its paper's two values."""
+    word, digits = ("succeeds more often than", 3) if c["key"] == "success_rate" else ("crosses sooner than", 1)
+    paper = "no such row (its thesis)" if c["paper"] is None else " vs ".join(f"{v:.{digits}f}" for v in c["paper"])
+    return f"{c['scenario']}: {NAMES[c['a']]} {word} {NAMES[c['b']]}", digits, paper
+
+
+def ci_text(d: float, ci, digits: int) -> str:
+    return f"{d:+.{digits}f}" + ("" if ci is None else f" [{ci[0]:+.{digits}f}, {ci[1]:+.{digits}f}]")
+
+
+def p_cell(p) -> str:
+    return "-" if p is None or np.isnan(p) else paired.p_text(p)
 
 
 def claims_block(found: dict) -> list[str]:
-    """docs/RESULTS.md's table of the paper's claims, one per line (`claim_rows`): the paper's two values; at the default
-    budget both rows' means with their seeds (n), the difference with its 95 % CI, the verdict, the seeds per row
-    that would settle an undecided claim, A's wins per seed, the sign-flip p and P(A > B); at the paper's budget,
-    seed 0's difference and the cases only A / only B arrives in, with no verdict."""
-    lines = ["| claim | the paper | 10^5 steps: A vs B (seeds) | A - B [95 % CI] (Welch) | verdict | seeds per row to "
-             "settle | A ahead, seed by seed | sign-flip p over seeds | P(A > B) [95 % CI] | 5 x 10^5, seed 0: A - B; "
-             "only A / only B arrives |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for c in claim_rows(found):
-        word, digits = ("succeeds more often than", 3) if c["key"] == "success_rate" else ("crosses sooner than", 1)
-        paper = "no such row (its thesis)" if c["paper"] is None else " vs ".join(f"{v:.{digits}f}" for v in c["paper"])
-        means = " vs ".join(f"{m:.{digits}f} (n = {n})" for m, n in zip(c["means"], c["n"]))
-        settle = "-" if c["verdict"] != "undecided" else f"> {MOST_SEEDS:,}" if c["settle"] is None else c["settle"]
-        chance = "{:.2f} [{:.2f}, {:.2f}]".format(*c["improvement"])
-        interval = f"{c['d']:+.{digits}f} [{c['ci'][0]:+.{digits}f}, {c['ci'][1]:+.{digits}f}]"
-        lines.append(f"| {c['scenario']}: {NAMES[c['a']]} {word} {NAMES[c['b']]} | {paper} | {means} | {interval} | "
-                     f"**{c['verdict']}** | {settle} | {c['wins'][0]} / {c['wins'][1]} | {c['sign_flip']:.2g} | {chance} | "
-                     f"{c['long']:+.{digits}f}; {c['cases']['only_mine']} / {c['cases']['only_other']} |")
+    """docs/RESULTS.md's tables of the paper's claims (`claim_rows`), each with its caption: at 10^5 steps every
+    claim of analysis.claims.CLAIMS, one family; at the paper's 5 x 10^5 steps the thesis and TARL against its
+    planner, another family, interim until every claim has its planned seeds. Per claim: the paper's two values;
+    both rows' means over the paired seeds with n of the planned n; A - B with the paired t's 95 % CI; its p raw and
+    Holm-adjusted over the family; the verdict (of record, or interim); at 10^5, the seeds to settle an undecided
+    claim, A's wins seed by seed, the sign-flip p and, secondary, every seed of each row: Welch's A - B with its 95 %
+    CI and P(A > B); at 5 x 10^5, A - B seed by seed and the cases only A / only B arrives in. Each claim has an id,
+    C1.. at 10^5 and P1.. at 5 x 10^5 (CLAIMS' order), by which the findings name the rows they rest on."""
+    short, long = claim_rows(found), claim_rows(found, PAPER_BUDGET[0])
+    lines = [caption(short, STEPS), "",
+             "| # | claim | the paper | paired seeds: A vs B (n of planned) | A - B [95 % CI] (paired t) | p | p, Holm | "
+             "verdict | seeds to settle | A ahead, seed by seed | sign-flip p | secondary, every seed: A vs B (n), "
+             "A - B [95 % CI] (Welch) | P(A > B) [95 % CI] |", "|---" * 13 + "|"]
+    for i, c in enumerate(short, 1):
+        name, digits, paper = claim_text(c)
+        settle = "-" if c["verdict"] != "undecided" else (f"> {claims.MOST_SEEDS:,}" if c["settle"] is None
+                                                         else str(c["settle"]))
+        welch = "-" if c["welch"] is None else ci_text(c["welch"]["d"], c["welch"]["ci"], digits)
+        every = " vs ".join(f"{m:.{digits}f} (n = {n})" for m, n in zip(c["means"], c["n_all"]))
+        chance = "-" if c["improvement"] is None else "{:.2f} [{:.2f}, {:.2f}]".format(*c["improvement"])
+        lines.append(f"| C{i} | {name} | {paper} | {c['paired_means'][0]:.{digits}f} vs "
+                     f"{c['paired_means'][1]:.{digits}f} "
+                     f"({c['n']} of {len(c['planned'])}) | {ci_text(c['d'], c['ci'], digits)} | {p_cell(c['p'])} | "
+                     f"{p_cell(c['p_holm'])} | **{c['verdict']}** | {settle} | {c['wins'][0]} / {c['wins'][1]} | "
+                     f"{p_cell(c['sign_flip'])} | {every}: {welch} | {chance} |")
+    lines += ["", caption(long, PAPER_BUDGET[0]), "",
+              "| # | claim | the paper | paired seeds: A vs B (n of planned) | A - B, seed by seed | "
+              "A - B [95 % CI] (paired t) | p | p, Holm | verdict | only A / only B arrives (cases of the paired "
+              "seeds) |",
+              "|---" * 10 + "|"]
+    for i, c in enumerate(long, 1):
+        name, digits, paper = claim_text(c)
+        each = ", ".join(f"seed {k}: {d:+.{digits}f}" for k, d in zip(c["seeds"], c["diffs"]))
+        lines.append(f"| P{i} | {name} | {paper} | {c['paired_means'][0]:.{digits}f} vs "
+                     f"{c['paired_means'][1]:.{digits}f} ({c['n']} of {len(c['planned'])}) | {each} | "
+                     f"{'-' if c['ci'] is None else ci_text(c['d'], c['ci'], digits)} | {p_cell(c['p'])} | "
+                     f"{p_cell(c['p_holm'])} | **{c['verdict']}** | "
+                     f"{c['cases']['only_mine']} / {c['cases']['only_other']} |")
     return lines
+
+
+def caption(rows: list[dict], steps: int) -> str:
+    """A claims table's caption: its budget, its family, its planned seeds and whether its verdicts are of record."""
+    m, plans, have = len(rows), " or ".join(map(str, sorted({len(c["planned"]) for c in rows}))), sorted(
+        {c["n"] for c in rows})
+    head = (f"**{budget_text((steps, None))} training steps: {m} claims, one family.** Planned n: {plans} seeds, "
+            "those the design gives both rows (`analysis/claims.py`, PLAN). ")
+    if rows[0]["interim"]:
+        return head + (f"**Interim**: n = {' to '.join(map(str, dict.fromkeys((have[0], have[-1]))))} of {plans} "
+                       "seeds committed so far; the numbers are shown as they stand and no verdict is called until "
+                       "every claim has its planned seeds (then tested once, at that n). The paired t needs two "
+                       "seeds; Holm's adjustment counts a claim not yet testable as p = 1.")
+    return head + (
+        "Every claim is at its planned n: these are the verdicts of record. Test of record: Student's paired t on the "
+        "per-seed differences A - B over the seeds both rows have (+ the claim's order), its 95 % CI and two-sided p; "
+        f"Holm's step-down over the {m} claims. Holds / fails: Holm p < {claims.ALPHA} and A - B above / below 0; "
+        f"equivalent within ±{claims.MARGIN['success_rate']} (success only): the two one-sided paired tests against "
+        f"the margin, Holm over the success claims, below {claims.ALPHA}; otherwise undecided. Seeds to settle: the "
+        f"fewest seeds both rows need for the paired t to reach {claims.POWER * 100:.0f} % power at the observed mean "
+        f"difference and std of the differences, at the claim's Holm level ({claims.ALPHA} / (m - i + 1), i its rank "
+        "by raw p; the rank may move as seeds are added). Secondary, unpaired: Welch's test over every seed of each "
+        "row and P(A > B) (rliable's probability of improvement, stratified bootstrap).")
 
 
 def side_block(found: dict, algos, paper: bool = False) -> list[str]:
     """One table of both scenarios side by side at the default budget: per row its seeds (n) and per scenario its
     success (mean +- std over seeds, in brackets the mean per-round std; n = 1: the mean and its per-round std),
     collisions / timeouts and crossing time (means over seeds); with `paper`, Table 3's success (its +-) and crossing
-    time beside each, the best success of Table 3's rows in each scenario in bold and the ablations in italics."""
+    time beside each, and the ablations in italics. No success is bold: a test, not a maximum, orders rows."""
     table = {algo: {s: found.get(DEFAULT, {}).get((s, algo)) for s in SCENARIOS} for algo in algos}
-    best = {s: max((over_seeds(t[s], "success_rate")[0] for algo, t in table.items()
-                    if t[s] and algo in TABLE_ROWS), default=None) for s in SCENARIOS}
     lines = ["| model | seeds | " + " | ".join(f"{s}: success | collisions / timeouts | crossing [s]"
                                                 + " | paper" * paper for s in SCENARIOS) + " |",
              "|---|---|" + ("---|---|---|" + "---|" * paper) * len(SCENARIOS)]
@@ -551,8 +578,7 @@ def side_block(found: dict, algos, paper: bool = False) -> list[str]:
                 cells += ["-"] * (3 + paper)
                 continue
             stats = {k: over_seeds(rows[scenario], k) for k in (*RATES, "crossing_time")}
-            bold = "**" * (paper and algo in TABLE_ROWS and stats["success_rate"][0] == best[scenario])
-            cells += [f"{bold}{cell_text(stats['success_rate'], 3)}{bold}",
+            cells += [cell_text(stats['success_rate'], 3),  # no bold: no test picks a best row (the claims do)
                       " / ".join(f"{stats[k][0]:.3f}" for k in RATES[1:]),
                       "-" if stats["crossing_time"] is None else f"{stats['crossing_time'][0]:.1f}"]
             cells += [f"{ref[0]:.3f} ({ref[1]:.3f}), {ref[2]:.1f} s" if ref else "-"] * paper
@@ -580,6 +606,27 @@ def write_readme(found: dict, readme: Path):
         path.write_text(text)
 
 
+def played(found: dict, most: int = 6) -> str:
+    """What the rows were evaluated on, from their eval.json (rounds, cases_per_round): "10 rounds x 200 test cases"
+    where every row played the same; else each size, the rows of all but the commonest named (`most` of each)."""
+    sizes = {}
+    for budget, cells_ in found.items():
+        for (scenario, algo), seeds in cells_.items():
+            for seed, row in seeds.items():
+                sizes.setdefault((row.get("rounds"), row.get("cases_per_round")), []).append(
+                    f"{scenario} {row_name(algo, {seed: row})} seed {seed}"
+                    + (f" at {budget_text(budget)} steps" if budget != DEFAULT else ""))
+    text = lambda r, c: ("an unrecorded number of rounds x test cases" if None in (r, c)  # noqa: E731
+                         else f"{r} round{'s' * (r != 1)} x {c} test cases")
+    if len(sizes) < 2:
+        return text(*next(iter(sizes))) if sizes else "its rounds (no finished cell yet)"
+    common = max(sizes, key=lambda size: len(sizes[size]))
+    others = [f"{text(*size)} in {', '.join(rows[:most])}{f' and {len(rows) - most} more' * (len(rows) > most)}"
+              for size, rows in sizes.items() if size != common]
+    return "; ".join([f"its rounds, which differ between rows (their eval.json): {text(*common)} in "
+                      f"{len(sizes[common])} rows", *others])
+
+
 def collect(args, extra=(), out: Path | None = None) -> str:
     """Rebuild results/table3.md from the eval.json files under results/runs (or write `out` instead) and return its
     text. With `extra`, eval.json files of outside policies (--extra), their rows join the tables and the text goes to
@@ -589,12 +636,13 @@ def collect(args, extra=(), out: Path | None = None) -> str:
         raise SystemExit(f"--out {out}: the committed results, which rows outside the paper (--extra) never enter")
     found = load(args.results, extra)
     lines = ["# Table 3, reproduced", "",
-             f"Each cell: mean +- std over the n seeds (ddof = 0) of each seed's mean over {args.rounds} rounds x "
-             f"{args.cases} test cases; in brackets the mean per-round std (the paper's +-). A row of one seed (n = 1) has "
+             f"Each cell: mean +- std over the n seeds (ddof = 0) of each seed's mean over {played(found)}; in "
+             "brackets the mean per-round std (the paper's +-). A row of one seed (n = 1) has "
              "no spread over seeds: its cell is the mean and, in brackets, its per-round std. Crossing: over a round's "
              "successes (the paper's measure); crossing, timeouts at 60 s, no collisions: over the cases that did not "
              "collide (collisions are left out), a timeout counted at the 60 s limit. Paper: Table 3 "
-             f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from results/runs/*/eval.json.", ""]
+             f"(5 x 10^5 training steps). Built by `python bench/table3.py --collect-only` from "
+             f"{shown(args.results)}/runs/*/eval.json.", ""]
     lines += [f"Outside the paper (--extra, not committed results): {', '.join(map(str, extra))}.", ""] * bool(extra)
     for budget, scenario in [(DEFAULT, s) for s in SCENARIOS] + [(b, s) for b in by_budget(found) if b != DEFAULT
                                                                   for s in SCENARIOS]:
@@ -629,70 +677,211 @@ def collect(args, extra=(), out: Path | None = None) -> str:
               "beside it when it started) and the load when it started.", "", *wall_times(args.results), ""]
     text = "\n".join(lines)
     if out is not None or not extra:
+        (out or committed).parent.mkdir(parents=True, exist_ok=True)  # no cell finished yet: no RESULTS either
         (out or committed).write_text(text)
     if args.readme:
         write_readme(found, ROOT / "README.md")
     return text
 
 
-def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    if "--slurm" in argv:  # the same cells as a Slurm array job: bench/slurm.py takes the rest
-        import slurm
-        return slurm.main([a for a in argv if a != "--slurm"])
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--algos", nargs="+", default=list(RUN + ABLATIONS), choices=RUN + ABLATIONS)
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
-    p.add_argument("--steps", type=int, default=STEPS, help="training steps of every learned row (another budget's "
-                   "cells are S-A-sK-500k, reported apart)")
-    p.add_argument("--step-one", type=int, help="steps of Alg. 1's step 1 in every cell (default: the share "
-                   f"TrainConfig.sac_fraction = {tarl.TrainConfig.sac_fraction} of --steps); cells S-A-sK-67k-step1-40k")
-    p.add_argument("--rounds", type=int, default=10)
-    p.add_argument("--cases", type=int, default=200)
-    p.add_argument("--jobs", type=int, default=2, help="cells side by side")
-    p.add_argument("--threads", type=int, help="torch threads and evaluation workers of each cell (default: 2 // "
-                   "jobs, at least 1; give 1 when another grid runs beside this one)")
-    p.add_argument("--work", type=Path, default=ROOT / "runs" / "grid", help="the cells' run directories")
-    p.add_argument("--results", type=Path, default=ROOT / "results")
-    p.add_argument("--commit", action="store_true", help="git commit each finished cell's results")
-    p.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell (2 threads "
-                   "each unless --threads) and exit")
-    p.add_argument("--slurm", action="store_true", help="the unfinished cells as a Slurm array job: the rest of the "
-                   "command line goes to bench/slurm.py (--submit, --write FILE, --collect, --cpus-per-task, --time, "
-                   "--partition; its --help)")
-    p.add_argument("--collect-only", action="store_true", help="only rebuild results/table3.md and print it")
-    p.add_argument("--extra", type=Path, nargs="+", default=[], metavar="PATH", help="with --collect-only: eval.json "
-                   "files of policies outside the paper (bench/own_agent.py's), each row listed after Table 3's rows "
-                   "and the ablations as 'LABEL (outside the paper)'; the tables are then printed (and written to "
-                   "--out FILE if given), never to results/table3.md")
-    p.add_argument("--out", type=Path, metavar="FILE", help="with --collect-only: write the tables here instead "
-                   "(default: results/table3.md, or no file with --extra)")
-    p.add_argument("--readme", action="store_true", help="also rewrite the result tables of README.md (the headline) "
-                   "and docs/RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
-    args = p.parse_args(argv)
-    # the cells run with cwd=ROOT: a relative --work or --results means the caller's directory, not ROOT
-    args.work, args.results = args.work.resolve(), args.results.resolve()
-    if args.jobs < 1 or (args.threads is not None and args.threads < 1):
-        p.error("--jobs and --threads must be at least 1")
+def folders(trial: bool) -> tuple[Path, Path]:
+    """The default --work and --results: runs/grid and results/, or a trial's runs/trial/grid and runs/trial."""
+    return (TRIAL / "grid", TRIAL) if trial else (ROOT / "runs" / "grid", ROOT / "results")
+
+
+def collect_command(args) -> str:
+    """The command that builds this grid's table (and names its unfinished cells)."""
+    given = zip(("work", "results"), (args.work, args.results), folders(trial=False))
+    return "python bench/table3.py --collect-only" + "".join(
+        f" --{name} {shlex.quote(shown(path))}" for name, path, default in given if path != default)
+
+
+def held(lock: Path) -> bool:
+    """Does a process (a grid here, a Slurm task) hold this run directory's lock now (claim)?"""
+    if not lock.exists():
+        return False
+    with open(lock) as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+    return False
+
+
+def unfinished(work: Path, results: Path) -> list[tuple[str, bool]]:
+    """The cells started in WORK and not finished: each run directory with a ckpt.pt or a lock and no eval.json in
+    RESULTS/runs, as (its name, whether it runs now: `held`)."""
+    return [(out.name, held(out / "lock")) for out in (sorted(work.iterdir()) if work.is_dir() else [])
+            if out.is_dir() and ((out / "ckpt.pt").exists() or (out / "lock").exists())
+            and not (results / "runs" / out.name / "eval.json").exists()]
+
+
+def not_in_table(args) -> list[str]:
+    """What --collect-only says after the table, on stderr: the cells started and not finished (`unfinished`), and
+    the array tasks of this work directory's job still in Slurm's queue (bench/slurm.py's `queued`)."""
+    started, lines = unfinished(args.work, args.results), []
+    if started:
+        running, stopped = [name for name, now in started if now], [name for name, now in started if not now]
+        lines.append(f"not in the table: {len(started)} cell(s) started in {shown(args.work)} and not finished"
+                     + f"; running now: {', '.join(running)}" * bool(running)
+                     + f"; stopped, the same command resumes them: {', '.join(stopped)}" * bool(stopped))
+    if (args.work / "grid.sbatch").exists():
+        import slurm  # bench/slurm.py (it imports this module)
+        tasks = slurm.queued(args.work)
+        counts = [f"{len(ids)} {state.lower()} ({', '.join(ids[:8])}{', ...' * (len(ids) > 8)})"
+                  for state, ids in tasks.items()]
+        if tasks:
+            lines.append(f"in Slurm's queue (squeue), tasks of {shown(args.work / 'grid.sbatch')}: {'; '.join(counts)}")
+    return lines
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):
+        """A mistake on the command line: one line (--help lists the options)."""
+        self.exit(2, f"{self.prog}: {message}\n")
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line of every path to a cell (a grid run here, --print-commands, --slurm) and of the table: each
+    option declared once, with one default."""
+    p = Parser(prog="bench/table3.py", description=__doc__.split("\n")[0], epilog="A trial, other "
+                                f"than Table 3's {ROUNDS} rounds x {CASES} cases, goes to runs/trial/grid and "
+                                "runs/trial unless --work or --results say otherwise: `rm -r runs/trial` removes it.")
+    grid = p.add_argument_group("the grid: its cells, on every path")
+    algos = (*RUN, "lattice-idm", *ABLATIONS)
+    grid.add_argument("--algos", nargs="+", default=list(GRID), choices=algos, metavar="ALGO",
+                      help=f"the rows, of {', '.join(algos)} (default: Table 3's learned ones and TARL's two "
+                      f"ablations, {' '.join(GRID)}; the other variants, beyond/variants.py, only when named). "
+                      "lattice-idm has no cell of its own: TARL's cell evaluates it on the same cases, so it selects "
+                      "TARL's cell")
+    grid.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    grid.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=SCENARIOS)
+    grid.add_argument("--steps", type=int, default=STEPS, help="training steps of every learned row (another budget's "
+                      "cells are S-A-sK-500k, reported apart)")
+    grid.add_argument("--step-one", type=int, help="steps of Alg. 1's step 1 in every cell (default: the share "
+                      f"TrainConfig.sac_fraction = {tarl.TrainConfig.sac_fraction} of --steps); cells "
+                      "S-A-sK-67k-step1-40k")
+    grid.add_argument("--rounds", type=int, default=ROUNDS, help=f"evaluation rounds of a cell (Table 3's: {ROUNDS}; "
+                      "any other --rounds or --cases is a trial)")
+    grid.add_argument("--cases", type=int, default=CASES, help=f"test cases a round (Table 3's: {CASES})")
+    grid.add_argument("--work", type=Path, help="the cells' run directories and, on Slurm, the tasks' output files, on "
+                      "a disk the compute nodes share (default: runs/grid; a trial's: runs/trial/grid)")
+    grid.add_argument("--results", type=Path, help="where finished cells go, RESULTS/runs/CELL, and the table, "
+                      "RESULTS/table3.md (default: results; a trial's: runs/trial)")
+    here = p.add_argument_group("a grid run here")
+    here.add_argument("--jobs", type=int, help="cells side by side (default 2)")
+    here.add_argument("--threads", type=int, help=f"torch threads and evaluation workers of each cell, also in "
+                      f"--print-commands (default {THREADS}, as the committed cells ran: the same seed at another "
+                      "thread count gives other numbers)")
+    here.add_argument("--commit", action="store_true", help="make git commits in this repository: after each "
+                      "finished cell, rebuild RESULTS/table3.md and `git add` and `git commit` it and the cell's "
+                      "RESULTS/runs/CELL, nothing else")
+    here.add_argument("--print-commands", action="store_true", help="print one command per unfinished cell and exit")
+    on = p.add_argument_group("on a Slurm cluster (bench/slurm.py)")
+    on.add_argument("--slurm", action="store_true", help="the unfinished cells as an array job, a task per cell, which "
+                    "publishes its own files and never builds the table nor commits; without --submit or --write, "
+                    "print the job file")
+    on.add_argument("--submit", action="store_true", help="submit the array job (its file: WORK/grid.sbatch)")
+    on.add_argument("--write", type=Path, metavar="FILE", help="write the array job's file (to sbatch yourself)")
+    on.add_argument("--cpus-per-task", type=int, help=f"each task's CPUs, its cell's torch threads and evaluation "
+                    f"workers (default {THREADS}: one-thread cells side by side use the cores best)")
+    on.add_argument("--time", help=f"each task's time limit (sbatch --time; default {TIME_LIMIT}: a 10^5-step cell at "
+                    "one thread with margin; a 5 x 10^5-step one takes 1.7-3.0 h). A longer cell is warned, saves, and "
+                    "its task requeued resumes it")
+    on.add_argument("--partition", help="the cluster's partition (default: the cluster's default partition)")
+    on.add_argument("--task", action="store_true", help="run the one selected cell as an array task (the job file's "
+                    "command)")
+    table = p.add_argument_group("the table")
+    table.add_argument("--collect-only", action="store_true", help="build RESULTS/table3.md from "
+                       "RESULTS/runs/*/eval.json and print it; then name, on stderr, the cells started in WORK and not "
+                       "finished and the grid's tasks still in Slurm's queue")
+    table.add_argument("--extra", type=Path, nargs="+", default=[], metavar="PATH", help="with --collect-only: "
+                       "eval.json files of policies outside the paper (bench/own_agent.py's), each row listed after "
+                       "Table 3's rows and the ablations as 'LABEL (outside the paper)'; the tables are then printed "
+                       "(and written to --out FILE if given), never to results/table3.md")
+    table.add_argument("--out", type=Path, metavar="FILE", help="with --collect-only: write the tables here instead "
+                       "(default: results/table3.md, or no file with --extra)")
+    table.add_argument("--readme", action="store_true", help="also rewrite the result tables of README.md (the "
+                       "headline) and docs/RESULTS.md (the full ones), between their <!-- table3.py NAME --> markers")
+    return p
+
+
+def settle(p: argparse.ArgumentParser, args) -> argparse.Namespace:
+    """The parsed command line checked, each mistake one line before any work, and completed: the defaults of the path
+    taken, TARL's cell for lattice-idm, a trial's folders, absolute paths (a relative one is the caller's)."""
+    actions = [flag for flag, on in (("--print-commands", args.print_commands), ("--collect-only", args.collect_only),
+                                     ("--submit", args.submit), ("--write", args.write), ("--task", args.task)) if on]
+    if len(actions) > 1:
+        p.error(f"{' and '.join(actions)}: choose one")
+    if args.slurm:
+        for flag, on, why in (
+                ("--commit", args.commit, "a Slurm task commits nothing; once the tasks are done, --collect-only "
+                 "builds the table: look, and commit it yourself"),
+                ("--threads", args.threads is not None, "a task's threads are its CPUs, --cpus-per-task"),
+                ("--jobs", args.jobs is not None, "the cluster runs the tasks, one per cell, as many at once as it has "
+                 "room for"),
+                ("--print-commands", args.print_commands, "--slurm without --submit or --write prints the job file")):
+            if on:
+                p.error(f"{flag} does not go with --slurm: {why}")
+        args.cpus_per_task = THREADS if args.cpus_per_task is None else args.cpus_per_task
+        args.time = args.time or TIME_LIMIT
+    else:
+        given = (("--submit", args.submit), ("--write", args.write), ("--task", args.task),
+                 *((f"--{name.replace('_', '-')}", getattr(args, name) is not None)
+                   for name in ("cpus_per_task", "time", "partition")))
+        slurm_only = [flag for flag, on in given if on]
+        if slurm_only:
+            p.error(f"{', '.join(slurm_only)}: Slurm's, with --slurm")
+        args.jobs = 2 if args.jobs is None else args.jobs
+        args.threads = THREADS if args.threads is None else args.threads
+        if args.jobs < 1 or args.threads < 1:
+            p.error("--jobs and --threads must be at least 1")
+    if "lattice-idm" in args.algos:
+        args.algos = list(dict.fromkeys("tarl" if algo == "lattice-idm" else algo for algo in args.algos))
+        print("--algos lattice-idm: Lattice-IDM has no cell of its own; TARL's cell (tarl) evaluates it on the same "
+              "test cases", file=sys.stderr)
     if args.step_one is not None and not 0 < args.step_one < args.steps:
         p.error("--step-one must be above 0 and below --steps")
     if args.step_one is not None and (plain := [a for a in args.algos if not experiment.ROWS[a].step_one]):
         p.error(f"--step-one: {', '.join(plain)} have no step 1")
+    if args.rounds < 1 or args.cases < 1:
+        p.error("--rounds and --cases must be at least 1")
     if (args.extra or args.out) and not args.collect_only:
         p.error("--extra and --out go with --collect-only")
     if args.extra and args.readme:
         p.error("--readme writes the committed results' tables, which rows outside the paper (--extra) never enter")
+    trial = (args.rounds, args.cases) != (ROUNDS, CASES)
+    defaults = None in (args.work, args.results)
+    work, results = folders(trial)
+    # the cells run with cwd=ROOT: a relative --work or --results means the caller's directory, not ROOT
+    args.work, args.results = (args.work or work).resolve(), (args.results or results).resolve()
+    if args.commit and (not args.results.is_relative_to(ROOT) or args.results.is_relative_to(ROOT / "runs")):
+        p.error(f"--commit: {shown(args.results)} is not in the repository's tracked results (git ignores runs/, where "
+                "a trial goes): nothing to commit")
+    if trial and defaults and not args.task:
+        print(f"a trial, {args.rounds} x {args.cases} test cases (Table 3's: {ROUNDS} x {CASES}): its cells in "
+              f"{shown(args.work)}, its results in {shown(args.results)}, apart from the committed ones "
+              "(`rm -r runs/trial` removes a trial's)", file=sys.stderr)
+    return args
+
+
+def main(argv=None):
+    p = parser()
+    args = settle(p, p.parse_args(argv))
     if args.collect_only:
-        return print(collect(args, args.extra, args.out))
-    todo = [c for c in cells(args.algos, args.seeds, args.scenarios)
-            if not (args.results / "runs" / cell_name(*c, args.steps, args.step_one) / "eval.json").exists()]
+        print(collect(args, args.extra, args.out))
+        for line in not_in_table(args):
+            print(line, file=sys.stderr)
+        return
+    if args.slurm:
+        import slurm  # bench/slurm.py: the array job and its tasks (it imports this module)
+        return slurm.run(p, args)
+    todo = [c for c in cells(args.algos, args.seeds, args.scenarios) if not done(c, args)]
     if args.print_commands:
-        return print("\n".join(" ".join(command(*c, args, args.threads or 2)) for c in todo))
-    args.threads = args.threads or max(2 // args.jobs, 1)
-    print(f"{len(todo)} cells to run, {args.jobs} at a time", flush=True)
+        return print("\n".join(" ".join(command(*c, args, args.threads)) for c in todo))
+    print(f"{len(todo)} cells to run, {args.jobs} at a time, {args.threads} thread(s) each", flush=True)
     run_grid(todo, args)
-    print((args.results / "table3.md").read_text())
+    print(collect(args))  # the table, once: the cells published their own files alone
 
 
 if __name__ == "__main__":

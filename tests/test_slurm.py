@@ -1,5 +1,7 @@
-"""bench/slurm.py, Table 3's grid as a Slurm array job, on a real Slurm: tiny cells run, a cancelled task and one
-warned of its time limit resume from their checkpoints, bad input is one line. The tests that need Slurm run wherever
+"""bench/slurm.py, Table 3's grid as a Slurm array job (bench/table3.py --slurm), on a real Slurm: tiny cells run
+and publish their own files alone, a cancelled task and one warned of its time limit resume from their checkpoints
+(so does the same command after Slurm itself was stopped), --collect-only names what is not finished, bad input is
+one line. The tests that need Slurm run wherever
 Slurm is installed; without sbatch on PATH they skip with one line that says how to install it, and fail instead
 where TARL_REQUIRE_SLURM=1 (.ci/run sets it). They never use a cluster that is already running (its queue is not
 theirs): they start a single-node Slurm of their own on free ports for the session and stop it by its pids."""
@@ -15,13 +17,16 @@ from argparse import Namespace
 import pytest
 
 import slurm  # noqa: E402
+import table3  # noqa: E402
 
 # SAC, 3,000 steps: the first 2,000 (before it learns) take seconds, the last 1,000 about 15 s on a busy core
 CELLS = ["--algos", "sac", "--seeds", "0", "--steps", "3000", "--rounds", "1", "--cases", "2"]
+BUSY = 600  # [s] the most a stretch of a cell may take on cores other work shares (a load of 7 on 2 cores: 4-5 min)
 
 
 # A cluster of this one machine: auth/none and cred/none fit a single node; the project's job files depend on none of
-# this (a real cluster has munge, its own partitions and limits).
+# this (a real cluster has munge, its own partitions and limits). MinJobAge: a finished task stays in scontrol's view
+# for the session (Slurm's default, 5 min, could drop a task that ended early before the last one ends).
 SLURM_CONF = """ClusterName=tarl-test
 SlurmctldHost={host}
 SlurmctldPort={ctld_port}
@@ -39,6 +44,7 @@ ReturnToService=2
 AuthType=auth/none
 CredType=cred/none
 JobAcctGatherType=jobacct_gather/none
+MinJobAge=3600
 NodeName={host} CPUs={cpus} State=UNKNOWN
 PartitionName=debug Nodes={host} Default=YES MaxTime=INFINITE State=UP
 """
@@ -137,21 +143,33 @@ def wait_for(condition, what: str, seconds: float = 120):
 def test_an_array_of_two_cells_runs_and_its_stopped_tasks_resume_from_their_checkpoints(tmp_path, capsys, cluster):
     """A 2-task array: once both cells train, task 0 gets the time limit's warning (USR1 to its main process, as
     `--signal=B:USR1@...` sends it): its cell saves and the task requeues itself. Task 1 is cancelled (SIGTERM to all
-    its processes, as scancel, a time limit and a pre-emption send): its cell saves, and submitting again resumes it.
-    Both cells finish where they stopped and are published to the results; --collect tables them."""
+    its processes, as scancel, a time limit and a pre-emption send): its cell saves, and its log says to submit the
+    same command again. Meanwhile --collect-only names both cells, unfinished, and the requeued task, pending. The
+    same command submitted again resumes the cancelled cell; the requeued task and its twin in the new job share the
+    other cell: one resumes it, the other ends at once. Both cells finish where they stopped and publish their own
+    files (no table: --collect-only builds it, its header from the cells' eval.json)."""
     dirs = ["--work", str(tmp_path / "work"), "--results", str(tmp_path / "results")]
     job = submit(CELLS + dirs, capsys, cluster)
     logs = {s: tmp_path / "work" / f"{s}-sac-s0-3k" / "log.txt" for s in ("intersection", "roundabout")}
     wait_for(lambda: all(log.exists() and "step    2000/3000" in log.read_text() for log in logs.values()),
-             "both cells to train")
+             "both cells to train", BUSY)
     subprocess.run(["scancel", "--batch", "--signal=USR1", f"{job}_0"], check=True)
     subprocess.run(["scancel", f"{job}_1"], check=True)
     wait_for(lambda: states(job) == {0: ("PENDING", 1), 1: ("CANCELLED", 0)}, "task 0 requeued, task 1 cancelled")
+    wait_for(lambda: all("# on Slurm, this cell resumes" in log.read_text() for log in logs.values()),
+             "both tasks to say how their cells resume")
+    assert "submit the same command again" in logs["roundabout"].read_text()
+    assert "its task requeues itself and resumes it" in logs["intersection"].read_text()
+    slurm.main([*CELLS, *dirs, "--collect-only"])
+    err = capsys.readouterr().err
+    assert "not in the table: 2 cell(s) started in " in err and all(f"{s}-sac-s0-3k" in err for s in logs), err
+    assert f"in Slurm's queue (squeue), tasks of {tmp_path}/work/grid.sbatch: 1 pending ({job}_0)" in err, err
+    (tmp_path / "results" / "table3.md").unlink()  # its table of no cell: no task writes one again
     # Slurm holds a requeued task for 2 min; start it now, a second after its end (slurmd refuses it in that second)
     time.sleep(2)
     subprocess.run(["scontrol", "update", f"JobId={job}_0", "StartTime=now"], check=True)
-    again = submit(["--scenarios", "roundabout", *CELLS, *dirs], capsys, cluster)
-    wait_for(lambda: completed(f"{job}_0", f"{again}_0"), "both cells to finish")
+    again = submit(CELLS + dirs, capsys, cluster)  # the same command: both cells, neither finished yet
+    wait_for(lambda: completed(f"{job}_0", f"{again}_0", f"{again}_1"), "both cells to finish", BUSY)
     for scenario, log in logs.items():
         text = log.read_text()
         stopped = re.search(r"interrupted at step (\d+): saving", text)
@@ -159,11 +177,13 @@ def test_an_array_of_two_cells_runs_and_its_stopped_tasks_resume_from_their_chec
         assert f"training sac on the {scenario} from step {stopped[1]} to 3000" in text, text  # not from step 0
         assert text.count("UTC: start, 1 thread(s)") == 2 and "UTC: finished after" in text, text
         assert (tmp_path / "results" / "runs" / log.parent.name / "eval.json").exists()
-    out = (tmp_path / "work" / f"slurm-{job}_0.out").read_text()
-    assert f"requeueing task {job}_0" in out and out.count("--resume") == 1, out
-    (tmp_path / "results" / "table3.md").unlink()
-    slurm.main([*CELLS, *dirs, "--collect"])
-    assert capsys.readouterr().out.count("| SAC (") == 2
+    assert not (tmp_path / "results" / "table3.md").exists()  # a task publishes its own files alone
+    twins = [(tmp_path / "work" / f"slurm-{task}.out").read_text() for task in (f"{job}_0", f"{again}_0")]
+    assert f"requeueing task {job}_0" in twins[0], twins
+    assert [sum(out.count(word) for out in twins) for word in ("--resume", "done or run by another task")] == [1, 1]
+    slurm.main([*CELLS, *dirs, "--collect-only"])
+    out, err = capsys.readouterr()
+    assert out.count("| SAC (") == 2 and "each seed's mean over 1 round x 2 test cases;" in out and not err, err
 
 
 def test_bad_input_is_one_line_before_any_work(tmp_path, cluster):
@@ -187,6 +207,43 @@ def test_without_sbatch_it_says_so_in_one_line(tmp_path, monkeypatch):
     assert not (tmp_path / "work").exists()
 
 
+def test_what_does_not_go_with_slurm_says_why_in_one_line_before_any_work(tmp_path, capsys):
+    """--commit, --threads and --jobs belong to a grid run here: with --slurm each is one line that says why; Slurm's
+    own options without --slurm, one line too. Nothing written."""
+    dirs = ["--work", str(tmp_path / "work"), "--results", str(tmp_path / "results")]
+    for flag, why in (("--commit", "a Slurm task commits nothing; once the tasks are done, --collect-only builds "
+                                   "the table: look, and commit it yourself"),
+                      ("--threads 2", "a task's threads are its CPUs, --cpus-per-task"),
+                      ("--jobs 2", "the cluster runs the tasks, one per cell")):
+        with pytest.raises(SystemExit):
+            slurm.main([*CELLS, *dirs, *flag.split(), "--submit"])
+        err = capsys.readouterr().err
+        assert err.startswith(f"bench/table3.py: {flag.split()[0]} does not go with --slurm: {why}"), err
+        assert err.count("\n") == 1, err
+    with pytest.raises(SystemExit):
+        table3.main([*CELLS, *dirs, "--time", "4:00:00"])
+    assert capsys.readouterr().err == "bench/table3.py: --time: Slurm's, with --slurm\n"
+    assert not (tmp_path / "work").exists()
+
+
+def test_after_slurm_was_stopped_the_same_command_skips_finished_cells_and_resumes_started_ones(tmp_path, capsys,
+                                                                                                 slurm_up):
+    """Slurm stopped between two working days, its tasks gone with it, then started again: the same command queues
+    the unfinished cells alone, and a started cell's task resumes it from its ckpt.pt (--resume in its command)."""
+    dirs = ["--work", str(tmp_path / "work"), "--results", str(tmp_path / "results")]
+    (tmp_path / "results" / "runs" / "intersection-sac-s0-3k").mkdir(parents=True)
+    (tmp_path / "results" / "runs" / "intersection-sac-s0-3k" / "eval.json").write_text("{}")  # finished
+    (tmp_path / "work" / "roundabout-sac-s0-3k").mkdir(parents=True)
+    (tmp_path / "work" / "roundabout-sac-s0-3k" / "ckpt.pt").write_bytes(b"")  # started
+    slurm.main([*CELLS, *dirs, "--write", str(tmp_path / "again.sbatch")])
+    assert capsys.readouterr().out.startswith(f"wrote {tmp_path / 'again.sbatch'}: 1 array task(s)")
+    text = (tmp_path / "again.sbatch").read_text()
+    assert '  "--scenarios roundabout --algos sac --seeds 0"' in text.splitlines() and "intersection" not in text
+    p = table3.parser()
+    task = table3.settle(p, p.parse_args(["--slurm", "--task", *CELLS, "--scenarios", "roundabout", *dirs]))
+    assert table3.command("roundabout", "sac", 0, task, 1)[-1] == "--resume"
+
+
 def test_the_job_file_has_the_command_lines_options_and_no_cluster_of_its_own(tmp_path):
     """CPUs, time limit and partition as given; no partition line without one (the cluster's default); requeued,
     warned before its limit; one task per cell."""
@@ -198,6 +255,8 @@ def test_the_job_file_has_the_command_lines_options_and_no_cluster_of_its_own(tm
                  f"#SBATCH --signal=B:USR1@{slurm.WARN}", '  "--scenarios roundabout --algos cpo --seeds 2"'):
         assert line in text.splitlines(), text
     assert "--partition" not in text
+    assert (f"bench/table3.py --slurm --task ${{CELLS[$SLURM_ARRAY_TASK_ID]}} --steps 3000 --rounds 1 --cases 2 "
+            f"--work {tmp_path} --results {tmp_path}") in text
     assert "#SBATCH --partition=gpu" in slurm.job_file(todo, Namespace(**{**vars(args), "partition": "gpu"}))
     assert [slurm.seconds(t) for t in ("90", "1:30", "2:00:00", "1-2", "1-00:00:30", "2h")] == [
         5400, 90, 7200, 93600, 86430, None]
