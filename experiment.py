@@ -429,7 +429,7 @@ def parse_args(argv=None):
     """The command line, all of it checked before any work: a bad value is one line, not a late traceback."""
     p = argparse.ArgumentParser(prog="tarl.py", description="Train timing-aware RL (or a baseline) in SUMO, then "
                                 "evaluate it as Table 3 does.", formatter_class=Help)
-    p.add_argument("--scenario", choices=sorted(SCENARIOS), default="roundabout")
+    p.add_argument("--scenario", choices=sorted(SCENARIOS), default="roundabout", help="default: %(default)s")
     p.add_argument("--algo", choices=tuple(ROWS), default="tarl",
                    help="the row of Table 3 to train and evaluate; Lattice-IDM is evaluated beside it")
     p.add_argument("--preset", choices=tuple(PRESETS), help="lab: a class's run, a few minutes on 2 cores: "
@@ -457,8 +457,9 @@ def parse_args(argv=None):
     g.add_argument("--omega", type=float, help=f"w of Eq. (6) (default: the checkpoint's, else {TimingConfig.omega})")
     g.add_argument("--t-max", type=int, help=f"T_max [steps] of a run to train (default {TimingConfig.t_max})")
     g.add_argument("--timing", metavar="SPEC", help="with --load: how the loaded actor's T is chosen: learned, phased "
-                   "(Eq. (7)'s schedule), random, fixed=T, cap=T (the timing taker's T, at most T) or rollout[=T1,T2,...] "
-                   "(the T of the best simulated branch, beyond/rollout_timing.py)")
+                   "(Eq. (7)'s schedule), random, fixed=T, cap=T (the timing taker's T, at most T), rollout[=T1,T2,...] "
+                   "(the T of the best simulated branch, beyond/rollout_timing.py) or distilled=PATH (a student of "
+                   "bench/distillation.py, beyond/distil.py)")
     w = p.add_argument_group("traffic (Table 1)")
     w.add_argument("--spawn-gap", type=float, help="t_spawn [s]: mean gap between departures (default: the scenario's)")
     w.add_argument("--svo", type=float, nargs=2, metavar=("LOW", "HIGH"), help="range of the humans' alpha_svo of "
