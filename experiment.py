@@ -458,8 +458,7 @@ def parse_args(argv=None):
     g.add_argument("--t-max", type=int, help=f"T_max [steps] of a run to train (default {TimingConfig.t_max})")
     g.add_argument("--timing", metavar="SPEC", help="with --load: how the loaded actor's T is chosen: learned, phased "
                    "(Eq. (7)'s schedule), random, fixed=T, cap=T (the timing taker's T, at most T), rollout[=T1,T2,...] "
-                   "(the T of the best simulated branch, beyond/rollout_timing.py) or distilled=PATH (a student of "
-                   "bench/distillation.py, beyond/distil.py)")
+                   "(the best simulated branch's T, beyond/rollout_timing.py) or distilled=PATH (beyond/distil.py)")
     w = p.add_argument_group("traffic (Table 1)")
     w.add_argument("--spawn-gap", type=float, help="t_spawn [s]: mean gap between departures (default: the scenario's)")
     w.add_argument("--svo", type=float, nargs=2, metavar=("LOW", "HIGH"), help="range of the humans' alpha_svo of "
