@@ -242,7 +242,10 @@ def choose_margin(data: dict, adv: np.ndarray, inputs: str, train_chunks: list[i
 
 
 def train(args):
-    daggers = [distil.tagged(d, args.loss) for d in args.dagger]  # the labels of the states these students drove to
+    # the labels of the states these students drove to: A names --loss's student A (decision-A); a tag with its loss
+    # (decision-A, mse-B: the committed mse round's B) names another loss's round
+    daggers = [d.removeprefix("mse-") if d.startswith(("mse-", "decision-")) else distil.tagged(d, args.loss)
+               for d in args.dagger]
     data, chunks = load_labels(args.scenario, args.actor_seed, args.out, daggers)
     cfg = RolloutConfig()
     held = held_out(data)
@@ -537,8 +540,9 @@ def main(argv=None):
         sub.choices[name].add_argument("--students", nargs="+", default=list(distil.INPUTS),
                                        help="input sets: A, B, C, or one less a group (C-routes)")
         sub.choices[name].add_argument("--dagger", nargs="+", default=[], metavar="STUDENT",
-                                       help="also the labels of the states these students (of --loss) drove to "
-                                            "(label --student); the students go to SCENARIO-sSEED[-LOSS]-dagger")
+                                       help="also the labels of the states these students (of --loss; or tagged with "
+                                            "theirs: decision-A, mse-B) drove to (label --student); the students go "
+                                            "to SCENARIO-sSEED[-LOSS]-dagger")
         sub.choices[name].add_argument("--loss", choices=LOSSES, default=LOSSES[0],
                                        help="decision: trained for the choice, stopped early (SCENARIO-sSEED-decision);"
                                             " mse: every candidate's advantage and a margin (the committed students)")

@@ -228,6 +228,13 @@ def test_train_splits_by_chunk_and_writes_students_and_their_curve(tmp_path):
     text = distillation.report(argparse.Namespace(out=tmp_path, actor_seed=0))
     assert "## roundabout, actor seed 0, after one DAgger round" in text
     assert "| roundabout | 0 | student A drove (DAgger) | 40 (10) |" in text
+    # a decision student's round can join the committed mse round's labels: each named with its loss
+    (dagger := distillation.folder("roundabout", 0, tmp_path, "decision-B")).mkdir(parents=True)
+    write_chunk(dagger, 6, rng)
+    distillation.main(["train", "--scenario", "roundabout", "--out", str(tmp_path), "--students", "A", "--dagger", "B",
+                       "mse-A"])
+    st = json.loads((tmp_path / "roundabout-s0-decision-dagger" / "students.json").read_text())
+    assert st["dagger"] == ["decision-B", "A"] and st["train_chunks"] == [0, 1, 2, 3, 5, 6]
 
 
 def test_the_gate_refuses_a_student_that_does_not_beat_the_constant(tmp_path, capsys):
