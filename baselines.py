@@ -31,6 +31,7 @@ from torch import Tensor
 from torch.nn.utils import parameters_to_vector, vector_to_parameters
 
 import tarl
+import world
 
 
 @dataclass(frozen=True)
@@ -224,7 +225,7 @@ class ConstrainedTrainer(tarl.Trainer):
     """tarl.Trainer (run, logs, checkpoints; a subclass replaces its SAC) with a cost: J_c over the recent
     episodes in `constraint`, SAC-Lag's and SAC-PID's lambda updated at every episode's end, constraint_log.csv."""
 
-    def __init__(self, env: tarl.DrivingEnv, algo: str, tc: tarl.TrainConfig, sac_cfg: tarl.SACConfig, seed, out, log,
+    def __init__(self, env: world.DrivingEnv, algo: str, tc: tarl.TrainConfig, sac_cfg: tarl.SACConfig, seed, out, log,
                  timing: str, step_one: bool):
         assert timing == "none" and not step_one, "a safe-RL row is the actor alone (experiment.ROWS)"
         super().__init__(env, algo, tc, sac_cfg, seed, out, log, timing, step_one)  # plain SAC's actor loop
@@ -299,8 +300,8 @@ class SafeSACTrainer(ConstrainedTrainer):
         space, d = env.action_space, cfg.cost_limit
         multiplier = Lagrange(d, cfg.lagrange_lr) if algo == "sac-lag" else PIDLagrange(d, *cfg.pid_gains)
         self.constraint = CostConstraint(d, cfg.window, multiplier)
-        self.actor = ConstrainedSAC(tarl.OBS_DIM, len(space.low), space.low, space.high, sac_cfg, self.constraint)
-        self.D_a = tarl.ReplayBuffer(sac_cfg.buffer_size, tarl.OBS_DIM, space.shape, extra=("cost",))
+        self.actor = ConstrainedSAC(world.OBS_DIM, len(space.low), space.low, space.high, sac_cfg, self.constraint)
+        self.D_a = tarl.ReplayBuffer(sac_cfg.buffer_size, world.OBS_DIM, space.shape, extra=("cost",))
         self.driver = tarl.Driver("none", self.actor)
 
 
@@ -342,8 +343,8 @@ class OnPolicyAgent:
     parts = ("policy", "values", "constraint", "policy_optimizer", "values_optimizer")
 
     def __init__(self, low, high, cfg: SafeRLConfig, constraint: CostConstraint):
-        self.policy = GaussianPolicy(tarl.OBS_DIM, len(low), low, high, cfg.hidden, cfg.init_log_std)
-        self.values = nn.ModuleDict({k: value_net(tarl.OBS_DIM, cfg.hidden) for k in ("rew", "cost")})  # V_r, V_c
+        self.policy = GaussianPolicy(world.OBS_DIM, len(low), low, high, cfg.hidden, cfg.init_log_std)
+        self.values = nn.ModuleDict({k: value_net(world.OBS_DIM, cfg.hidden) for k in ("rew", "cost")})  # V_r, V_c
         self.policy_optimizer = torch.optim.Adam(self.policy.parameters(), lr=cfg.policy_lr)  # PPO-Lag's
         self.values_optimizer = torch.optim.Adam(self.values.parameters(), lr=cfg.value_lr)
         self.constraint = constraint

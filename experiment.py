@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib
 import json
 import multiprocessing as mp
 import multiprocessing.connection
@@ -32,11 +33,8 @@ from pathlib import Path
 
 import tarl  # noqa: I001 (first: it sets OpenMP's wait policy before torch loads)
 import baselines
-from beyond import distil
 import numpy as np
-from beyond import rollout_timing
 import torch
-from beyond import variants
 import world
 from tarl import Driver, SACConfig, TimingConfig, TrainConfig, execute
 from world import SCENARIOS, DrivingEnv, EnvConfig
@@ -45,15 +43,15 @@ from world import SCENARIOS, DrivingEnv, EnvConfig
 @dataclass(frozen=True)
 class Row:
     """A row of Table 3: how it trains and how it acts."""
-
     label: str
     timing: str  # its tarl.Driver's timing
     step_one: bool  # Algorithm 1's step 1 (plain SAC for TrainConfig.sac_fraction of the steps) comes first
-    trainer: type | None  # tarl.Trainer or a trainer of baselines.py; None: nothing to train
+    trainer: type | str | None  # tarl.Trainer, baselines.py's, a class's name in BEYOND; None: nothing to train
     imagination: str = "phased"  # what its timing imagination executes (TrainConfig.imagination)
     timing_updates: int = 1  # its timing taker's updates per decision (TrainConfig.timing_updates)
 
 
+BEYOND = "beyond.variants"  # the trainers of the rows beyond the paper (PAPER.md, 6), imported only when one trains
 ROWS = {
     "tarl": Row("TARL", "taker", True, tarl.Trainer),
     "tarl-fixed-t": Row("TARL, T = 2 fixed", "fixed", True, tarl.Trainer),  # ablation: no timing taker
@@ -61,12 +59,10 @@ ROWS = {
     "tarl-consistent": Row("TARL, phased real loop", "phased", True, tarl.Trainer),  # beyond the paper (PAPER.md)
     "tarl-held": Row("TARL, held imagination", "taker", True, tarl.Trainer, "held"),  # beyond the paper (PAPER.md)
     "tarl-utd": Row("TARL, 8 timing updates", "taker", True, tarl.Trainer, timing_updates=8),  # beyond the paper
-    "tarl-actor-target": Row("TARL, actor's critic in Eq. (9)", "taker", True, variants.ActorTargetTrainer,
-                             timing_updates=0),  # beyond the paper (PAPER.md, 6): a timing update every step instead
-    "tarl-rare-replay": Row("TARL, collision replay", "taker", True, variants.RareReplayTrainer),  # beyond the paper
-    "tarl-min-target": Row("TARL, lower of both critics in Eq. (9)", "taker", True, variants.MinTargetTrainer,
-                           timing_updates=0),  # beyond the paper (PAPER.md, 6)
-    "tarl-branch": Row("TARL, timing from branches", "taker", True, variants.BranchTrainer),  # beyond the paper
+    "tarl-actor-target": Row("TARL, actor's critic in Eq. (9)", "taker", True, "ActorTargetTrainer", timing_updates=0),
+    "tarl-rare-replay": Row("TARL, collision replay", "taker", True, "RareReplayTrainer"),  # beyond the paper
+    "tarl-min-target": Row("TARL, lower of both critics in Eq. (9)", "taker", True, "MinTargetTrainer", timing_updates=0),
+    "tarl-branch": Row("TARL, timing from branches", "taker", True, "BranchTrainer"),  # beyond the paper, as the 3 above
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),
@@ -84,7 +80,8 @@ def make_trainer(algo: str, env: DrivingEnv, tc: TrainConfig, seed: int = 0, out
     row = ROWS[algo]
     sac_cfg = SACConfig(**state["config"]["sac"]) if state else SACConfig()
     tc = replace(tc, imagination=row.imagination, timing_updates=row.timing_updates)
-    return row.trainer(env, algo, tc, sac_cfg, seed, out, log, timing=row.timing, step_one=row.step_one)
+    trainer = getattr(importlib.import_module(BEYOND), row.trainer) if isinstance(row.trainer, str) else row.trainer
+    return trainer(env, algo, tc, sac_cfg, seed, out, log, timing=row.timing, step_one=row.step_one)
 
 
 def trained_rows(trainer) -> list[dict]:
@@ -96,14 +93,15 @@ def trained_rows(trainer) -> list[dict]:
     return rows
 
 
+BEYOND_TIMINGS = {"rollout": "beyond.rollout_timing", "distilled": "beyond.distil"}  # --timing NAME[=...]: its module
+
+
 def timing_override(spec: str, trainer) -> Driver:
     """--timing of a loaded model: learned, phased, random, fixed=T, cap=T, rollout[=T1,T2,...] or distilled=PATH, with
     the model's actor."""
-    if (cfg := rollout_timing.parse(spec)) is not None:
-        return rollout_timing.RolloutTiming(trainer.actor, trainer.seed, trainer.tc.timing, cfg)
-    if (student := distil.parse(spec)) is not None:
-        return distil.DistilledTiming(trainer.actor, student, trainer.seed, trainer.tc.timing)
     name, _, value = spec.partition("=")
+    if name in BEYOND_TIMINGS:  # beyond the paper: its module, imported only now, reads the spec
+        return importlib.import_module(BEYOND_TIMINGS[name]).driver(spec, trainer)
     timing = {"learned": "taker", "cap": "taker"}.get(name, name)
     return Driver(timing, trainer.actor, trainer.timing_taker, trainer.seed, trainer.tc.timing,
                   fixed_T=int(value) if name == "fixed" else 2, cap=int(value) if name == "cap" else None)
@@ -400,7 +398,6 @@ def table(results: list[dict]) -> str:
 
 class Help(argparse.ArgumentDefaultsHelpFormatter):
     """--help with each default, except those given in the text (None here)."""
-
     def _get_help_string(self, action):
         return action.help if action.default is None else super()._get_help_string(action)
 
@@ -413,7 +410,7 @@ def timing_error(spec: str, algo: str) -> str | None:
     """What is wrong with --timing SPEC for a loaded actor of --algo ALGO (timing_override), or None."""
     name, eq, value = spec.partition("=")
     try:
-        if rollout_timing.parse(spec) is not None or distil.parse(spec) is not None:
+        if name in BEYOND_TIMINGS and importlib.import_module(BEYOND_TIMINGS[name]).parse(spec) is not None:
             return None
     except (ValueError, SystemExit) as e:
         return str(e)
@@ -458,7 +455,8 @@ def parse_args(argv=None):
     g.add_argument("--t-max", type=int, help=f"T_max [steps] of a run to train (default {TimingConfig.t_max})")
     g.add_argument("--timing", metavar="SPEC", help="with --load: how the loaded actor's T is chosen: learned, phased "
                    "(Eq. (7)'s schedule), random, fixed=T, cap=T (the timing taker's T, at most T), rollout[=T1,T2,...] "
-                   "(the best simulated branch's T, beyond/rollout_timing.py) or distilled=PATH (beyond/distil.py)")
+                   "(the T of the best simulated branch, beyond/rollout_timing.py) or distilled=PATH (a student of "
+                   "bench/distillation.py, beyond/distil.py)")
     w = p.add_argument_group("traffic (Table 1)")
     w.add_argument("--spawn-gap", type=float, help="t_spawn [s]: mean gap between departures (default: the scenario's)")
     w.add_argument("--svo", type=float, nargs=2, metavar=("LOW", "HIGH"), help="range of the humans' alpha_svo of "

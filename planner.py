@@ -83,9 +83,15 @@ class PlannerConfig:
 def quintic_coefficients(l0: ArrayLike, v0: ArrayLike, a0: ArrayLike, le: ArrayLike,
                          ve: ArrayLike, ae: ArrayLike, te: ArrayLike) -> np.ndarray:
     """Solve Eq. (19) in closed form: (c1, ..., c6) of Eq. (18) on the last axis; the arguments
-    broadcast (te > 0), the result has shape broadcast(inputs) + (6,)."""
+    broadcast (te > 0), the result has shape broadcast(inputs) + (6,). Rows 1-3 of Eq. (19), at t = 0,
+    fix c6 = l0, c5 = v0, c4 = a0 / 2; rows 4-6, at t = te, are then A x = b in x = (c1, c2, c3):
+
+        [    te^5     te^4    te^3 ] [c1]   [ le - l0 - v0 te - a0 te^2 / 2 ]
+        [  5 te^4   4 te^3  3 te^2 ] [c2] = [ ve - v0 - a0 te               ]
+        [ 20 te^3  12 te^2  6 te   ] [c3]   [ ae - a0                       ]
+
+    solved by hand below (test_tarl.py checks all six against numpy.linalg.solve)."""
     l0, v0, a0, le, ve, ae, te = (np.asarray(x, dtype=float) for x in (l0, v0, a0, le, ve, ae, te))
-    # Eq. (19): rows 1-3 give c6 = l0, c5 = v_l0, c4 = a_l0 / 2; rows 4-6 then c3, c2, c1 by hand
     dl = le - l0
     c3 = (20 * dl - (8 * ve + 12 * v0) * te - (3 * a0 - ae) * te**2) / (2 * te**3)
     c2 = (-30 * dl + (14 * ve + 16 * v0) * te + (3 * a0 - 2 * ae) * te**2) / (2 * te**4)
@@ -124,15 +130,12 @@ class _Lattice:
         fixed = self.trajectories(0.0, 0.0)
         self.responses = np.stack([fixed, self.trajectories(1.0, 0.0) - fixed,
                                    self.trajectories(0.0, 1.0) - fixed])
-        # Feasibility bounds of (speed, acceleration): no reversing, v_max, [a_min, a_max].
-        self.lower = np.array([[-_SLACK], [cfg.a_min - _SLACK]])  # [m/s], [m/s^2]
-        self.upper = np.array([[cfg.v_max], [cfg.a_max + _SLACK]])  # [m/s], [m/s^2]
+        self.lower = np.array([[-_SLACK], [cfg.a_min - _SLACK]])  # feasible (speed, acc) >= this: no reversing, a_min
+        self.upper = np.array([[cfg.v_max], [cfg.a_max + _SLACK]])  # and <= this: v_max, a_max [m/s], [m/s^2]
         # Eq. (21): phi_v = |sqrt(v_le^2 + v_de^2) - v_hat| = |v_e - v_hat| (v_de = 0; v_hat = 0 to stop)
         self.phi_v = np.abs(self.ve - np.where(np.arange(len(self.te)) < len(drive), cfg.v_target, 0.0))
-        # Eq. (21): phi_t = t_e
-        self.phi_t = self.te
-        # Eq. (21): phi_d = |d_e - d0| + |d_e - d_ref| = 0, since the ego stays on its lane centre
-        self.phi_d = 0.0
+        self.phi_t = self.te  # Eq. (21): phi_t = t_e
+        self.phi_d = 0.0  # Eq. (21): phi_d = |d_e - d0| + |d_e - d_ref| = 0, the ego stays on its lane centre
 
     def trajectories(self, v0: float, a0: float) -> np.ndarray:
         """(4, K, C): l - l0 and its first three derivatives for every candidate, from (v0, a0)."""
@@ -268,8 +271,7 @@ def lattice_cost(phi_coll: np.ndarray, jerk: np.ndarray, lat: _Lattice, cfg: Pla
     # Eq. (21): phi_jerk = sum_t (|l'''(t)| + |d'''(t)|), a Riemann sum over the grid (d''' = 0)
     phi_jerk = np.abs(jerk).sum(axis=0) * cfg.dt
     # Eq. (20): cost = K1 phi_coll + K2 phi_v + K3 phi_t + K4 phi_d + K5 phi_jerk
-    return (cfg.K1 * phi_coll + cfg.K2 * lat.phi_v + cfg.K3 * lat.phi_t + cfg.K4 * lat.phi_d
-            + cfg.K5 * phi_jerk)
+    return cfg.K1 * phi_coll + cfg.K2 * lat.phi_v + cfg.K3 * lat.phi_t + cfg.K4 * lat.phi_d + cfg.K5 * phi_jerk
 
 
 def state_machine(cost: np.ndarray, drive_ids: slice, stop_ids: slice, K1: float) -> tuple[str, int | None]:
@@ -319,8 +321,7 @@ def plan(s0: float, v0: float, a0: float, path_s: ArrayLike, path_xy: ArrayLike,
     trajectories = np.dot((1.0, v0, a0), lat.responses.reshape(3, -1)).reshape(lat.responses.shape[1:])
     positions, acc, jerk = trajectories[0], trajectories[2], trajectories[3]  # (K, C) each
     # Kinematic feasibility: 0 <= v <= v_max (no reversing) and a_min <= a <= a_max throughout.
-    speed_acc = trajectories[1:3]
-    feasible = ((speed_acc.min(axis=1) >= lat.lower) & (speed_acc.max(axis=1) <= lat.upper)).all(axis=0)
+    feasible = ((trajectories[1:3].min(axis=1) >= lat.lower) & (trajectories[1:3].max(axis=1) <= lat.upper)).all(axis=0)
     phi_coll = np.zeros(len(lat.te))
     if feasible.any():  # (else the FSM brakes, whatever the others do)
         path = _cached_path_segments(*(np.asarray(p, dtype=float).tobytes() for p in (path_s, path_xy)))

@@ -13,12 +13,14 @@ line) is experiment.py; the safe-RL rows are baselines.py.
 Equations are cited by the number printed in the paper's PDF (PAPER.md maps them to the LaTeX labels
 and has the notes cited as "docs/PAPER.md, note n").
 
-    Eq. (5) timing_input;  Eqs. (6), (11) beta;  Eqs. (7), (12) blend, execute;  Eq. (8) discounted_sum
-    Eqs. (9), (13) td_target, critic_loss;  Eqs. (10), (14) policy_loss
+In the order of Sec. 4, the SAC mechanics last:
+
     Sec. 4, open values           TimingConfig: w of Eq. (6) and T_max, their one home
-    Table 2                       SACConfig, SAC, ReplayBuffer
-    Algorithm 1                   TrainConfig, Trainer.run, Trainer.imagination_loop, Trainer.actor_loop
+    Eqs. (6), (11) beta;  Eqs. (7), (12) blend, execute;  Eq. (5) timing_input;  Eq. (8) discounted_sum
     How each row acts             Driver, execute
+    Algorithm 1                   TrainConfig, Trainer.run, Trainer.imagination_loop, Trainer.actor_loop
+    Table 2                       SACConfig, SAC, ReplayBuffer
+    Eqs. (9), (13) td_target, critic_loss;  Eqs. (10), (14) policy_loss
 """
 from __future__ import annotations
 
@@ -31,14 +33,17 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 # Run as `python tarl.py`: OpenMP's threads wait passively, set before torch loads OpenMP. Spinning, two
-# threads beside another busy process trained at 1.6 steps/s instead of 65 (RESULTS.md, History).
+# threads beside another busy process trained at 1.6 steps/s instead of 65 (results/LOG.md, "Speed").
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn as nn  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 
-from world import CROSS, OBS_DIM, SCENARIOS, YIELD, DrivingEnv, EnvConfig  # noqa: F401 (tarl.X for users)
+from world import OBS_DIM, DrivingEnv, EnvConfig
+
+
+# ---- Sec. 4: the timing factor beta, the blend, the timing taker's input and its reward -----------
 
 
 @dataclass(frozen=True)
@@ -61,7 +66,6 @@ def beta(T, dt=1, *, omega: float):
     return 0.5 * (np.tanh(omega * (dt / T - 0.5)) / np.tanh(omega / 2.0) + 1.0)
 
 
-
 def blend(a, a_base, b):
     """Eqs. (7) and (12): a_bar = beta a + (1 - beta) a_base."""
     return b * a + (1.0 - b) * a_base
@@ -80,260 +84,6 @@ def timing_input(obs, a, cfg: EnvConfig):
 def discounted_sum(rewards, gamma: float) -> float:
     """Eq. (8): r_T = sum_{dt=1..T} gamma^(dt-1) r(s_t, a_bar_{t+dt})."""
     return float(np.sum(np.asarray(rewards) * gamma ** np.arange(len(rewards))))
-
-
-# ---- Soft Actor-Critic: one implementation for the actor (continuous) and the timing taker (discrete) ---
-
-
-@dataclass(frozen=True)
-class SACConfig:
-    batch_size: int = 256  # B, Table 2
-    buffer_size: int = 1_000_000  # N_buffer, Table 2
-    learning_starts: int = 2_000  # N_start, Table 2: env steps before the first update
-    hidden: int = 256  # D_hidden, Table 2; "simple MLP": two hidden layers, as in SAC (Haarnoja 2018)
-    gamma: float = 0.99  # gamma, Table 2; the timing taker discounts a decision by gamma^T, Eq. (9)
-    tau: float = 0.005  # tau, Table 2: Polyak weight of the target critics (PAPER.md, note 10)
-    lr: float = 3e-4  # lr, Table 2: one Adam rate for policies, critics and temperatures
-    init_alpha: float = 1.0  # open: the starting temperature, log alpha = 0 as in SAC
-    # Open: the discrete head's target entropy as a fraction of log(n). Atari's 0.98 log n (Christodoulou
-    # 2019) asks for a near-uniform pi over T; 0.3 log 10 ~ log 2 lets the timing taker commit, yet explore.
-    target_entropy_fraction: float = 0.3
-
-
-LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # clamp of the Gaussian's log std; Haarnoja et al. (2018)'s values
-
-
-def mlp(in_dim: int, out_dim: int, hidden: int) -> nn.Sequential:
-    """Table 2: two hidden layers of D_hidden units with ReLU."""
-    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
-                         nn.Linear(hidden, out_dim))
-
-
-class TwinCritic(nn.Module):
-    """Q1 and Q2 as one batched MLP: (obs (B, obs_dim), act (B, act_dim) or None) -> (2, B, out_dim).
-
-    out_dim is 1 for Q(s, a), n for Q(s, .) of a discrete head. Layer k holds both critics' weights
-    stacked, (2, in, out), applied by one torch.baddbmm; the first layer's are two blocks, for obs and act
-    (the same as feeding cat(obs, act), without the copy). frozen=True uses detached weights: gradients
-    reach act, never the critic (the policy loss).
-    """
-
-    def __init__(self, obs_dim: int, act_dim: int, out_dim: int, hidden: int):
-        super().__init__()
-
-        def uniform(fan_in: int, *shape: int) -> nn.Parameter:  # nn.Linear's default initialisation
-            return nn.Parameter(torch.empty(2, *shape).uniform_(-fan_in**-0.5, fan_in**-0.5))
-
-        fan_in = obs_dim + act_dim
-        self.w1_obs, self.b1 = uniform(fan_in, obs_dim, hidden), uniform(fan_in, 1, hidden)
-        self.w1_act = uniform(fan_in, act_dim, hidden) if act_dim else None
-        self.w2, self.b2 = uniform(hidden, hidden, hidden), uniform(hidden, 1, hidden)
-        self.w3, self.b3 = uniform(hidden, hidden, out_dim), uniform(hidden, 1, out_dim)
-
-    def forward(self, obs: torch.Tensor, act: torch.Tensor | None = None, frozen: bool = False) -> torch.Tensor:
-        params = (self.w1_obs, self.w1_act, self.b1, self.w2, self.b2, self.w3, self.b3)
-        w1_obs, w1_act, b1, w2, b2, w3, b3 = (p.detach() if frozen and p is not None else p for p in params)
-        h = torch.baddbmm(b1, obs.expand(2, *obs.shape), w1_obs)
-        if act is not None:
-            h = h.baddbmm_(act.expand(2, *act.shape), w1_act)
-        h = torch.baddbmm(b2, h.relu_(), w2).relu_()
-        return torch.baddbmm(b3, h, w3)
-
-
-class SAC:
-    """SAC agent: continuous if act_dim is given (the actor), discrete if n_actions is (the timing taker).
-
-    The timing taker's input is cat(s, a) (Eq. (5)); its choices are the timings T = 1..n: act returns
-    T, the buffer stores T, and column T - 1 of Q(s, .) and pi(.|s) belongs to T. A constrained variant
-    (baselines.py) extends `losses`, and adds its networks to `optimizer` and online/target_params.
-    """
-
-    def __init__(self, obs_dim: int, act_dim: int | None = None, n_actions: int | None = None,
-                 low=None, high=None, cfg: SACConfig = SACConfig()):
-        assert (act_dim is None) != (n_actions is None), "give act_dim (continuous) or n_actions (discrete)"
-        self.cfg, self.discrete = cfg, n_actions is not None
-        if self.discrete:
-            self.n_actions = n_actions
-            self.policy = mlp(obs_dim, n_actions, cfg.hidden)  # logits of pi(T|s, a), Eq. (10)
-            self.critic = TwinCritic(obs_dim, 0, n_actions, cfg.hidden)  # Q(s, a, T) for every T, Eq. (9)
-            self.target_entropy = cfg.target_entropy_fraction * math.log(n_actions)
-        else:
-            self.act_dim = act_dim
-            low, high = (np.broadcast_to(np.asarray(v, np.float32), (act_dim,)) for v in (low, high))
-            assert (low < high).all(), "a continuous head needs per-dimension bounds low < high"
-            self.action_scale, self.action_bias = torch.as_tensor((high - low) / 2), torch.as_tensor((high + low) / 2)
-            self.log_prob_offset = -0.5 * math.log(2 * math.pi) - 2 * math.log(2.0) - self.action_scale.log()
-            self.policy = mlp(obs_dim, 2 * act_dim, cfg.hidden)  # mean and log std of pi(a|s), Eq. (14)
-            self.critic = TwinCritic(obs_dim, act_dim, 1, cfg.hidden)  # Q(s, a), Eq. (13)
-            self.target_entropy = -float(act_dim)  # SAC's heuristic -dim(A) (Haarnoja 2018b)
-        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)  # Q-hat: never trained
-        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
-        # Adam is per parameter: one optimizer over all of them equals one per network, in one kernel
-        params = [*self.policy.parameters(), *self.critic.parameters(), self.log_alpha]
-        self.optimizer = torch.optim.Adam(params, lr=cfg.lr, fused=True)
-        self.online_params, self.target_params = list(self.critic.parameters()), list(self.critic_target.parameters())
-
-    def squashed_gaussian(self, obs: torch.Tensor, deterministic: bool = False):
-        """obs (B, obs_dim) -> a (B, act_dim) in [low, high], log pi(a|s) (B,): a = bias + scale tanh(u),
-        u = mu + sigma eps (reparameterised), eps = 0 when deterministic."""
-        mu, log_std = self.policy(obs).chunk(2, dim=-1)
-        log_std = log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
-        eps = torch.zeros_like(mu) if deterministic else torch.randn_like(mu)
-        u = torch.addcmul(mu, log_std.exp(), eps)
-        a = torch.addcmul(self.action_bias, self.action_scale, torch.tanh(u))
-        # log pi(a|s) = log N(u; mu, sigma) - log|da/du|, da/du = scale (1 - tanh(u)^2), and
-        # log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), stable for large |u|; constants in log_prob_offset
-        log_prob = self.log_prob_offset - log_std - 0.5 * eps.square() + 2 * (u + F.softplus(-2 * u))
-        return a, log_prob.sum(-1)
-
-    def timing_distribution(self, obs: torch.Tensor):
-        """obs (B, obs_dim) -> pi(T|s) (B, n), log pi(T|s) (B, n), column T - 1 for T."""
-        log_probs = F.log_softmax(self.policy(obs), dim=-1)
-        return log_probs.exp(), log_probs
-
-    @torch.inference_mode()
-    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray | int:
-        """obs (obs_dim,) or (B, obs_dim) -> action (act_dim,) / (B, act_dim), or timing T (int / (B,) ints)."""
-        x = torch.as_tensor(obs, dtype=torch.float32)
-        x = x.unsqueeze(0) if obs.ndim == 1 else x
-        if self.discrete:
-            probs, _ = self.timing_distribution(x)
-            T = (probs.argmax(-1) if deterministic else torch.multinomial(probs, 1).squeeze(-1)).numpy() + 1
-            return int(T[0]) if obs.ndim == 1 else T
-        a = self.squashed_gaussian(x, deterministic)[0].numpy()
-        return a[0] if obs.ndim == 1 else a
-
-    def losses(self, batch: dict[str, torch.Tensor], penalty=None) -> dict[str, torch.Tensor]:
-        """The critics', the policy's and the temperature's losses on a batch (see ReplayBuffer), all at
-        the parameters before the step, as in Haarnoja et al.'s code. Their parameter sets are disjoint
-        (frozen critics in the policy loss, no gradient in the target), so one backward of their sum
-        gives each network its own gradient. penalty: see policy_loss."""
-        loss_q, q = critic_loss(self, batch)
-        # the discrete policy loss needs Q(s, .) at these parameters: reuse the critic's forward pass
-        loss_pi, entropy = policy_loss(self, batch["obs"], q.detach() if self.discrete else None, penalty)
-        return {"critic_loss": loss_q, "policy_loss": loss_pi,
-                "temperature_loss": temperature_loss(self.log_alpha, entropy, self.target_entropy)}
-
-    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """One gradient step on the sum of `losses`: Alg. 1 lines 13-14 (timing taker), 22-23 (actor)."""
-        losses = self.losses(batch)
-        self.optimizer.zero_grad(set_to_none=True)
-        sum(losses.values()).backward()
-        self.optimizer.step()
-        with torch.no_grad():  # Table 2: Q-hat <- (1 - tau) Q-hat + tau Q
-            torch._foreach_lerp_(self.target_params, self.online_params, self.cfg.tau)
-        return {k: v.detach() for k, v in losses.items()}  # 0-d tensors: float() each only to read it
-
-    def state_dict(self) -> dict:
-        """Plain tensors and dicts only: loadable with torch.load(weights_only=True)."""
-        return {"policy": self.policy.state_dict(), "critic": self.critic.state_dict(),
-                "critic_target": self.critic_target.state_dict(), "log_alpha": self.log_alpha.detach().clone(),
-                "optimizer": self.optimizer.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        """A full state_dict, or {"policy": ...} alone (policy.pt) to act."""
-        self.policy.load_state_dict(state["policy"])
-        if "critic" in state:
-            self.critic.load_state_dict(state["critic"])
-            self.critic_target.load_state_dict(state["critic_target"])
-            with torch.no_grad():
-                self.log_alpha.copy_(state["log_alpha"])
-            self.optimizer.load_state_dict(state["optimizer"])
-
-
-@torch.no_grad()
-def td_target(agent: SAC, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Target y (B,) of both critics: Eq. (9) (timing taker) and Eq. (13) (actor), y = r + discount
-    (1 - done) V(s'), discount = gamma^T (gamma for the actor). docs/PAPER.md, note 2: (13) is printed with
-    max_{a'} Q-hat; SAC's target is the soft value V(s') = E_{a'~pi}[min Q'(s', a') - alpha log pi(a'|s')]."""
-    alpha, next_obs = agent.log_alpha.exp(), batch["next_obs"]
-    if agent.discrete:  # the expectation over T' exactly
-        probs, log_probs = agent.timing_distribution(next_obs)
-        v_next = (probs * (agent.critic_target(next_obs).amin(0) - alpha * log_probs)).sum(-1)
-    else:  # one sample a' ~ pi(.|s')
-        a_next, log_prob = agent.squashed_gaussian(next_obs)
-        v_next = agent.critic_target(next_obs, a_next).amin(0).squeeze(-1) - alpha * log_prob
-    # Eq. (9): y = r_T + gamma^T (1 - delta) V(s_{t+T});  Eq. (13): the same with T = 1
-    return batch["rew"] + batch["discount"] * (1 - batch["done"]) * v_next
-
-
-def critic_loss(agent: SAC, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Eqs. (9) and (13), minimised (PAPER.md, note 2): sum_i mean_B (Q_i(s, a) - y)^2. batch: obs (B, obs_dim),
-    act (B, act_dim) or (B,) int T in 1..n, rew, discount, done (B,), next_obs (B, obs_dim). Returns the loss
-    and the critics at obs: Q(s, a) (2, B), or Q(s, .) (2, B, n) if discrete (the policy loss reuses them)."""
-    y = td_target(agent, batch)
-    if agent.discrete:
-        q = agent.critic(batch["obs"])
-        q_taken = q.gather(-1, (batch["act"] - 1).view(1, -1, 1).expand(2, -1, 1)).squeeze(-1)
-    else:
-        q = q_taken = agent.critic(batch["obs"], batch["act"]).squeeze(-1)
-    return (q_taken - y).square().mean(-1).sum(), q
-
-
-def policy_loss(agent: SAC, obs: torch.Tensor, q_obs: torch.Tensor | None = None, penalty=None):
-    """-J(phi) of Eq. (14) (actor) and Eq. (10) (timing taker), minimised, with frozen critics:
-    continuous: E_s[alpha log pi(a|s) - min Q(s, a) + penalty(s, a)], a ~ pi(.|s) reparameterised;
-    discrete:   E_s[sum_T pi(T|s) (alpha log pi(T|s) - min Q(s, T))], q_obs: Q(s, .) if already computed.
-    penalty: None, or (obs, a) -> (B,), a Lagrangian's cost term. Returns the loss and the entropy per
-    sample (B,), detached: -log pi(a|s) of the sampled a, or the exact entropy if discrete."""
-    alpha = agent.log_alpha.detach().exp()
-    if agent.discrete:
-        probs, log_probs = agent.timing_distribution(obs)
-        if q_obs is None:
-            with torch.no_grad():
-                q_obs = agent.critic(obs)
-        # Eq. (10): max E[Q(s, a, T) + alpha H(pi(.|s, a))], the expectation over T exact
-        return (probs * (alpha * log_probs - q_obs.amin(0))).sum(-1).mean(), -(probs * log_probs).sum(-1).detach()
-    a, log_prob = agent.squashed_gaussian(obs)
-    # Eq. (14): max E[Q(s, a) + alpha H(pi(.|s))], H estimated by -log pi(a|s)
-    loss = alpha * log_prob - agent.critic(obs, a, frozen=True).amin(0).squeeze(-1)
-    return (loss if penalty is None else loss + penalty(obs, a)).mean(), -log_prob.detach()
-
-
-def temperature_loss(log_alpha: torch.Tensor, entropy: torch.Tensor, target_entropy: float) -> torch.Tensor:
-    """Automatic temperature (Haarnoja 2018b): J(alpha) = E[alpha (H - H_bar)] on log alpha; alpha falls
-    when the policy's entropy (B,) exceeds the target H_bar, rises otherwise."""
-    return (log_alpha * (entropy - target_entropy)).mean()
-
-
-class ReplayBuffer:
-    """Transitions (s, a, r, s', discount, delta) of D_T (Alg. 1 line 12) and D_a (line 21), preallocated.
-
-    act_shape (act_dim,) float32 for the actor, () int64 for the timing taker's T. discount = gamma^k;
-    done = delta, 1 only at a true terminal (arrival or collision), not at the time limit. extra: names of
-    further float columns (a constrained baseline's "cost"), given to add() by keyword. The oldest
-    transitions are overwritten when full.
-    """
-
-    def __init__(self, capacity: int, obs_dim: int, act_shape: tuple = (1,), act_dtype=np.float32, extra=()):
-        self.capacity, self.ptr, self.size = capacity, 0, 0
-        self.data = {"obs": np.zeros((capacity, obs_dim), np.float32), "act": np.zeros((capacity, *act_shape), act_dtype),
-                     **{k: np.zeros(capacity, np.float32) for k in ("rew", "discount", "done", *extra)},
-                     "next_obs": np.zeros((capacity, obs_dim), np.float32)}
-
-    def __len__(self) -> int:
-        return self.size
-
-    def add(self, obs, act, rew: float, next_obs, discount: float, done: bool, **extra) -> None:
-        row = dict(obs=obs, act=act, rew=rew, next_obs=next_obs, discount=discount, done=done, **extra)
-        for key, array in self.data.items():
-            array[self.ptr] = row[key]
-        self.ptr, self.size = (self.ptr + 1) % self.capacity, min(self.size + 1, self.capacity)
-
-    def sample(self, batch_size: int, rng: np.random.Generator, idx=None) -> dict[str, torch.Tensor]:
-        """A uniform batch, or the rows idx if given."""
-        idx = rng.integers(0, self.size, batch_size) if idx is None else idx
-        return {key: torch.from_numpy(array[idx]) for key, array in self.data.items()}
-
-    def state_dict(self) -> dict:
-        """The filled part only, as tensors (torch.save / torch.load(weights_only=True))."""
-        return {"ptr": self.ptr, **{key: torch.from_numpy(a[: self.size].copy()) for key, a in self.data.items()}}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.size, self.ptr = len(state["obs"]), state["ptr"]
-        for key, array in self.data.items():
-            array[: self.size] = state[key].numpy()
-
 
 
 # ---- Driving: how each row of Table 3 acts ----------------------------------------------------------
@@ -399,6 +149,23 @@ def execute(env: DrivingEnv, a, b: float) -> float:
 
 
 # ---- Algorithm 1: the actor, the timing taker, the timing imagination -----------------------------
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """Table 2: SAC's settings, one set for the actor and the timing taker (the SAC class, at the end)."""
+
+    batch_size: int = 256  # B, Table 2
+    buffer_size: int = 1_000_000  # N_buffer, Table 2
+    learning_starts: int = 2_000  # N_start, Table 2: env steps before the first update
+    hidden: int = 256  # D_hidden, Table 2; "simple MLP": two hidden layers, as in SAC (Haarnoja 2018)
+    gamma: float = 0.99  # gamma, Table 2; the timing taker discounts a decision by gamma^T, Eq. (9)
+    tau: float = 0.005  # tau, Table 2: Polyak weight of the target critics (PAPER.md, note 10)
+    lr: float = 3e-4  # lr, Table 2: one Adam rate for policies, critics and temperatures
+    init_alpha: float = 1.0  # open: the starting temperature, log alpha = 0 as in SAC
+    # Open: the discrete head's target entropy as a fraction of log(n). Atari's 0.98 log n (Christodoulou
+    # 2019) asks for a near-uniform pi over T; 0.3 log 10 ~ log 2 lets the timing taker commit, yet explore.
+    target_entropy_fraction: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -649,6 +416,252 @@ class Trainer:
                 self.D_T.load_state_dict(state["timing_buffer"])
             self.rng.bit_generator.state = state["rng"]
             torch.set_rng_state(state["torch_rng"])
+
+
+# ---- Soft Actor-Critic: one implementation for the actor (continuous) and the timing taker (discrete) ---
+# The mechanics of Eqs. (9), (10), (13), (14), tuned for speed; bench/plain_sac.py is the textbook version.
+
+
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # clamp of the Gaussian's log std; Haarnoja et al. (2018)'s values
+
+
+def mlp(in_dim: int, out_dim: int, hidden: int) -> nn.Sequential:
+    """Table 2: two hidden layers of D_hidden units with ReLU."""
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
+                         nn.Linear(hidden, out_dim))
+
+
+class TwinCritic(nn.Module):
+    """Q1 and Q2 as one batched MLP: (obs (B, obs_dim), act (B, act_dim) or None) -> (2, B, out_dim).
+
+    out_dim is 1 for Q(s, a), n for Q(s, .) of a discrete head. Layer k holds both critics' weights
+    stacked, (2, in, out), applied by one torch.baddbmm; the first layer's are two blocks, for obs and act
+    (the same as feeding cat(obs, act), without the copy). frozen=True uses detached weights: gradients
+    reach act, never the critic (the policy loss).
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, out_dim: int, hidden: int):
+        super().__init__()
+
+        def uniform(fan_in: int, *shape: int) -> nn.Parameter:  # nn.Linear's default initialisation
+            return nn.Parameter(torch.empty(2, *shape).uniform_(-fan_in**-0.5, fan_in**-0.5))
+
+        fan_in = obs_dim + act_dim
+        self.w1_obs, self.b1 = uniform(fan_in, obs_dim, hidden), uniform(fan_in, 1, hidden)
+        self.w1_act = uniform(fan_in, act_dim, hidden) if act_dim else None
+        self.w2, self.b2 = uniform(hidden, hidden, hidden), uniform(hidden, 1, hidden)
+        self.w3, self.b3 = uniform(hidden, hidden, out_dim), uniform(hidden, 1, out_dim)
+
+    def forward(self, obs: torch.Tensor, act: torch.Tensor | None = None, frozen: bool = False) -> torch.Tensor:
+        params = (self.w1_obs, self.w1_act, self.b1, self.w2, self.b2, self.w3, self.b3)
+        w1_obs, w1_act, b1, w2, b2, w3, b3 = (p.detach() if frozen and p is not None else p for p in params)
+        h = torch.baddbmm(b1, obs.expand(2, *obs.shape), w1_obs)
+        if act is not None:
+            h = h.baddbmm_(act.expand(2, *act.shape), w1_act)
+        h = torch.baddbmm(b2, h.relu_(), w2).relu_()
+        return torch.baddbmm(b3, h, w3)
+
+
+class SAC:
+    """SAC agent: continuous if act_dim is given (the actor), discrete if n_actions is (the timing taker).
+
+    The timing taker's input is cat(s, a) (Eq. (5)); its choices are the timings T = 1..n: act returns
+    T, the buffer stores T, and column T - 1 of Q(s, .) and pi(.|s) belongs to T. A constrained variant
+    (baselines.py) extends `losses`, and adds its networks to `optimizer` and online/target_params.
+
+    Tuned for speed: both critics stacked in one TwinCritic, one fused Adam and one backward pass over the
+    summed losses, the squashed Gaussian's log-probability in closed form, the soft update by torch's
+    private _foreach_lerp_. The textbook version (two critic modules, an Adam per part, the critic step
+    first) is PlainSAC in bench/plain_sac.py; tests/test_sac.py holds the two equal:
+        test_updates_equal_the_plain_reference_updates                         five updates, every weight
+        test_{continuous,discrete}_losses_equal_a_straightforward_computation  the losses alone
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int | None = None, n_actions: int | None = None,
+                 low=None, high=None, cfg: SACConfig = SACConfig()):
+        assert (act_dim is None) != (n_actions is None), "give act_dim (continuous) or n_actions (discrete)"
+        self.cfg, self.discrete = cfg, n_actions is not None
+        if self.discrete:
+            self.n_actions = n_actions
+            self.policy = mlp(obs_dim, n_actions, cfg.hidden)  # logits of pi(T|s, a), Eq. (10)
+            self.critic = TwinCritic(obs_dim, 0, n_actions, cfg.hidden)  # Q(s, a, T) for every T, Eq. (9)
+            self.target_entropy = cfg.target_entropy_fraction * math.log(n_actions)
+        else:
+            self.act_dim = act_dim
+            low, high = (np.broadcast_to(np.asarray(v, np.float32), (act_dim,)) for v in (low, high))
+            assert (low < high).all(), "a continuous head needs per-dimension bounds low < high"
+            self.action_scale, self.action_bias = torch.as_tensor((high - low) / 2), torch.as_tensor((high + low) / 2)
+            self.log_prob_offset = -0.5 * math.log(2 * math.pi) - 2 * math.log(2.0) - self.action_scale.log()
+            self.policy = mlp(obs_dim, 2 * act_dim, cfg.hidden)  # mean and log std of pi(a|s), Eq. (14)
+            self.critic = TwinCritic(obs_dim, act_dim, 1, cfg.hidden)  # Q(s, a), Eq. (13)
+            self.target_entropy = -float(act_dim)  # SAC's heuristic -dim(A) (Haarnoja 2018b)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)  # Q-hat: never trained
+        self.log_alpha = torch.tensor(math.log(cfg.init_alpha), requires_grad=True)
+        # Adam is per parameter: one optimizer over all of them equals one per network, in one kernel
+        params = [*self.policy.parameters(), *self.critic.parameters(), self.log_alpha]
+        self.optimizer = torch.optim.Adam(params, lr=cfg.lr, fused=True)
+        self.online_params, self.target_params = list(self.critic.parameters()), list(self.critic_target.parameters())
+
+    def squashed_gaussian(self, obs: torch.Tensor, deterministic: bool = False):
+        """obs (B, obs_dim) -> a (B, act_dim) in [low, high], log pi(a|s) (B,): a = bias + scale tanh(u),
+        u = mu + sigma eps (reparameterised), eps = 0 when deterministic."""
+        mu, log_std = self.policy(obs).chunk(2, dim=-1)
+        log_std = log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+        eps = torch.zeros_like(mu) if deterministic else torch.randn_like(mu)
+        u = torch.addcmul(mu, log_std.exp(), eps)
+        a = torch.addcmul(self.action_bias, self.action_scale, torch.tanh(u))
+        # log pi(a|s) = log N(u; mu, sigma) - log|da/du|, da/du = scale (1 - tanh(u)^2), and
+        # log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), stable for large |u|; constants in log_prob_offset
+        log_prob = self.log_prob_offset - log_std - 0.5 * eps.square() + 2 * (u + F.softplus(-2 * u))
+        return a, log_prob.sum(-1)
+
+    def timing_distribution(self, obs: torch.Tensor):
+        """obs (B, obs_dim) -> pi(T|s) (B, n), log pi(T|s) (B, n), column T - 1 for T."""
+        log_probs = F.log_softmax(self.policy(obs), dim=-1)
+        return log_probs.exp(), log_probs
+
+    @torch.inference_mode()
+    def act(self, obs: np.ndarray, deterministic: bool = False) -> np.ndarray | int:
+        """obs (obs_dim,) or (B, obs_dim) -> action (act_dim,) / (B, act_dim), or timing T (int / (B,) ints)."""
+        x = torch.as_tensor(obs, dtype=torch.float32)
+        x = x.unsqueeze(0) if obs.ndim == 1 else x
+        if self.discrete:
+            probs, _ = self.timing_distribution(x)
+            T = (probs.argmax(-1) if deterministic else torch.multinomial(probs, 1).squeeze(-1)).numpy() + 1
+            return int(T[0]) if obs.ndim == 1 else T
+        a = self.squashed_gaussian(x, deterministic)[0].numpy()
+        return a[0] if obs.ndim == 1 else a
+
+    def losses(self, batch: dict[str, torch.Tensor], penalty=None) -> dict[str, torch.Tensor]:
+        """The critics', the policy's and the temperature's losses on a batch (see ReplayBuffer), all at
+        the parameters before the step, as in Haarnoja et al.'s code. Their parameter sets are disjoint
+        (frozen critics in the policy loss, no gradient in the target), so one backward of their sum
+        gives each network its own gradient. penalty: see policy_loss."""
+        loss_q, q = critic_loss(self, batch)
+        # the discrete policy loss needs Q(s, .) at these parameters: reuse the critic's forward pass
+        loss_pi, entropy = policy_loss(self, batch["obs"], q.detach() if self.discrete else None, penalty)
+        return {"critic_loss": loss_q, "policy_loss": loss_pi,
+                "temperature_loss": temperature_loss(self.log_alpha, entropy, self.target_entropy)}
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """One gradient step on the sum of `losses`: Alg. 1 lines 13-14 (timing taker), 22-23 (actor)."""
+        losses = self.losses(batch)
+        self.optimizer.zero_grad(set_to_none=True)
+        sum(losses.values()).backward()
+        self.optimizer.step()
+        with torch.no_grad():  # Table 2: Q-hat <- (1 - tau) Q-hat + tau Q
+            torch._foreach_lerp_(self.target_params, self.online_params, self.cfg.tau)
+        return {k: v.detach() for k, v in losses.items()}  # 0-d tensors: float() each only to read it
+
+    def state_dict(self) -> dict:
+        """Plain tensors and dicts only: loadable with torch.load(weights_only=True)."""
+        return {"policy": self.policy.state_dict(), "critic": self.critic.state_dict(),
+                "critic_target": self.critic_target.state_dict(), "log_alpha": self.log_alpha.detach().clone(),
+                "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """A full state_dict, or {"policy": ...} alone (policy.pt) to act."""
+        self.policy.load_state_dict(state["policy"])
+        if "critic" in state:
+            self.critic.load_state_dict(state["critic"])
+            self.critic_target.load_state_dict(state["critic_target"])
+            with torch.no_grad():
+                self.log_alpha.copy_(state["log_alpha"])
+            self.optimizer.load_state_dict(state["optimizer"])
+
+
+@torch.no_grad()
+def td_target(agent: SAC, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Target y (B,) of both critics: Eq. (9) (timing taker) and Eq. (13) (actor), y = r + discount
+    (1 - done) V(s'), discount = gamma^T (gamma for the actor). docs/PAPER.md, note 2: (13) is printed with
+    max_{a'} Q-hat; SAC's target is the soft value V(s') = E_{a'~pi}[min Q'(s', a') - alpha log pi(a'|s')]."""
+    alpha, next_obs = agent.log_alpha.exp(), batch["next_obs"]
+    if agent.discrete:  # the expectation over T' exactly
+        probs, log_probs = agent.timing_distribution(next_obs)
+        v_next = (probs * (agent.critic_target(next_obs).amin(0) - alpha * log_probs)).sum(-1)
+    else:  # one sample a' ~ pi(.|s')
+        a_next, log_prob = agent.squashed_gaussian(next_obs)
+        v_next = agent.critic_target(next_obs, a_next).amin(0).squeeze(-1) - alpha * log_prob
+    # Eq. (9): y = r_T + gamma^T (1 - delta) V(s_{t+T});  Eq. (13): the same with T = 1
+    return batch["rew"] + batch["discount"] * (1 - batch["done"]) * v_next
+
+
+def critic_loss(agent: SAC, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eqs. (9) and (13), minimised (PAPER.md, note 2): sum_i mean_B (Q_i(s, a) - y)^2. batch: obs (B, obs_dim),
+    act (B, act_dim) or (B,) int T in 1..n, rew, discount, done (B,), next_obs (B, obs_dim). Returns the loss
+    and the critics at obs: Q(s, a) (2, B), or Q(s, .) (2, B, n) if discrete (the policy loss reuses them)."""
+    y = td_target(agent, batch)
+    if agent.discrete:
+        q = agent.critic(batch["obs"])
+        q_taken = q.gather(-1, (batch["act"] - 1).view(1, -1, 1).expand(2, -1, 1)).squeeze(-1)
+    else:
+        q = q_taken = agent.critic(batch["obs"], batch["act"]).squeeze(-1)
+    return (q_taken - y).square().mean(-1).sum(), q
+
+
+def policy_loss(agent: SAC, obs: torch.Tensor, q_obs: torch.Tensor | None = None, penalty=None):
+    """-J(phi) of Eq. (14) (actor) and Eq. (10) (timing taker), minimised, with frozen critics:
+    continuous: E_s[alpha log pi(a|s) - min Q(s, a) + penalty(s, a)], a ~ pi(.|s) reparameterised;
+    discrete:   E_s[sum_T pi(T|s) (alpha log pi(T|s) - min Q(s, T))], q_obs: Q(s, .) if already computed.
+    penalty: None, or (obs, a) -> (B,), a Lagrangian's cost term. Returns the loss and the entropy per
+    sample (B,), detached: -log pi(a|s) of the sampled a, or the exact entropy if discrete."""
+    alpha = agent.log_alpha.detach().exp()
+    if agent.discrete:
+        probs, log_probs = agent.timing_distribution(obs)
+        if q_obs is None:
+            with torch.no_grad():
+                q_obs = agent.critic(obs)
+        # Eq. (10): max E[Q(s, a, T) + alpha H(pi(.|s, a))], the expectation over T exact
+        return (probs * (alpha * log_probs - q_obs.amin(0))).sum(-1).mean(), -(probs * log_probs).sum(-1).detach()
+    a, log_prob = agent.squashed_gaussian(obs)
+    # Eq. (14): max E[Q(s, a) + alpha H(pi(.|s))], H estimated by -log pi(a|s)
+    loss = alpha * log_prob - agent.critic(obs, a, frozen=True).amin(0).squeeze(-1)
+    return (loss if penalty is None else loss + penalty(obs, a)).mean(), -log_prob.detach()
+
+
+def temperature_loss(log_alpha: torch.Tensor, entropy: torch.Tensor, target_entropy: float) -> torch.Tensor:
+    """Automatic temperature (Haarnoja 2018b): J(alpha) = E[alpha (H - H_bar)] on log alpha; alpha falls
+    when the policy's entropy (B,) exceeds the target H_bar, rises otherwise."""
+    return (log_alpha * (entropy - target_entropy)).mean()
+
+
+class ReplayBuffer:
+    """Transitions (s, a, r, s', discount, delta) of D_T (Alg. 1 line 12) and D_a (line 21), preallocated.
+
+    act_shape (act_dim,) float32 for the actor, () int64 for the timing taker's T. discount = gamma^k;
+    done = delta, 1 only at a true terminal (arrival or collision), not at the time limit. extra: names of
+    further float columns (a constrained baseline's "cost"), given to add() by keyword. The oldest
+    transitions are overwritten when full.
+    """
+
+    def __init__(self, capacity: int, obs_dim: int, act_shape: tuple = (1,), act_dtype=np.float32, extra=()):
+        self.capacity, self.ptr, self.size = capacity, 0, 0
+        self.data = {"obs": np.zeros((capacity, obs_dim), np.float32), "act": np.zeros((capacity, *act_shape), act_dtype),
+                     **{k: np.zeros(capacity, np.float32) for k in ("rew", "discount", "done", *extra)},
+                     "next_obs": np.zeros((capacity, obs_dim), np.float32)}
+
+    def __len__(self) -> int:
+        return self.size
+
+    def add(self, obs, act, rew: float, next_obs, discount: float, done: bool, **extra) -> None:
+        row = dict(obs=obs, act=act, rew=rew, next_obs=next_obs, discount=discount, done=done, **extra)
+        for key, array in self.data.items():
+            array[self.ptr] = row[key]
+        self.ptr, self.size = (self.ptr + 1) % self.capacity, min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator, idx=None) -> dict[str, torch.Tensor]:
+        """A uniform batch, or the rows idx if given."""
+        idx = rng.integers(0, self.size, batch_size) if idx is None else idx
+        return {key: torch.from_numpy(array[idx]) for key, array in self.data.items()}
+
+    def state_dict(self) -> dict:
+        """The filled part only, as tensors (torch.save / torch.load(weights_only=True))."""
+        return {"ptr": self.ptr, **{key: torch.from_numpy(a[: self.size].copy()) for key, a in self.data.items()}}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.size, self.ptr = len(state["obs"]), state["ptr"]
+        for key, array in self.data.items():
+            array[: self.size] = state[key].numpy()
 
 
 if __name__ == "__main__":

@@ -246,13 +246,13 @@ class Watch:
     def new_episode(self, seed=None):
         self.driver.new_episode(seed)
 
-    def act(self, obs, env: tarl.DrivingEnv, deterministic=False, a=None):
+    def act(self, obs, env: world.DrivingEnv, deterministic=False, a=None):
         a, T, b = self.driver.act(obs, env, deterministic, a)
         self.frames.append({**env.snapshot(), "T": T, "beta": b})  # who drives the step from this state
         return a, T, b
 
 
-def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
+def make_driver(args, env: world.DrivingEnv) -> tuple[tarl.Driver, str]:
     """The row's driver: Lattice-IDM, or the checkpoint's networks (loaded before any simulation), timed as
     args.timing says if it is given (experiment.timing_override: learned, phased, random, fixed=T, cap=T)."""
     if args.algo == "lattice-idm":
@@ -272,7 +272,7 @@ def make_driver(args, env: tarl.DrivingEnv) -> tuple[tarl.Driver, str]:
     return trainer.driver, label
 
 
-def replay(env: tarl.DrivingEnv, drivers: list[tarl.Driver], seed: int, round_: int, case: int) -> list[dict]:
+def replay(env: world.DrivingEnv, drivers: list[tarl.Driver], seed: int, round_: int, case: int) -> list[dict]:
     """Test case `case` of round `round_` played by each driver as experiment.play_round plays it (a case is
     the same episode whether played alone or within its round). Per driver, the rollout's record with
     "frames": the scene at each decision (Watch) and, as one more frame, the state the episode ended in."""
@@ -305,7 +305,7 @@ def snapshot_frames(ep: dict, until_collision: bool) -> tuple[list[int], int]:
     return sorted(set(np.round(np.linspace(0, end, 5)).astype(int).tolist())), end
 
 
-def partner(ep: dict, cfg: tarl.EnvConfig) -> str | None:
+def partner(ep: dict, cfg: world.EnvConfig) -> str | None:
     """The vehicle the ego collided with: one overlapping it in the last frame, else the nearest."""
     f = ep["frames"][-1]
     ego = f["ego"]
@@ -317,7 +317,7 @@ def partner(ep: dict, cfg: tarl.EnvConfig) -> str | None:
     return f["ids"][int(np.argmax(hit)) if hit.any() else int(np.argmin(d))]
 
 
-def draw_case(ep: dict, cfg: tarl.EnvConfig, title: str, out: Path, window: float, until_collision: bool = False):
+def draw_case(ep: dict, cfg: world.EnvConfig, title: str, out: Path, window: float, until_collision: bool = False):
     frames, end = snapshot_frames(ep, until_collision)
     dt, n = cfg.dt, ep["steps"]
     t = np.arange(n) * dt
@@ -404,7 +404,7 @@ def draw_case(ep: dict, cfg: tarl.EnvConfig, title: str, out: Path, window: floa
     save(fig, out)
 
 
-def case_title(label: str, scenario: str, round_: int, case: int, ep: dict, cfg: tarl.EnvConfig) -> str:
+def case_title(label: str, scenario: str, round_: int, case: int, ep: dict, cfg: world.EnvConfig) -> str:
     outcome = {"arrival": f"arrival, crossing time {ep['crossing_time']:.1f} s" if ep["crossing_time"] is not None else "arrival",
                "collision": f"collision at t = {ep['steps'] * cfg.dt:.1f} s",
                "timeout": f"timeout at t = {ep['steps'] * cfg.dt:.0f} s"}[ep["outcome"]]
@@ -423,8 +423,8 @@ def check_case_args(args):
 def case(args):
     check_case_args(args)
     torch_threads()
-    cfg = tarl.EnvConfig(scenario=args.scenario)
-    env = tarl.DrivingEnv(cfg)
+    cfg = world.EnvConfig(scenario=args.scenario)
+    env = world.DrivingEnv(cfg)
     try:
         driver, label = make_driver(args, env)
         ep, = replay(env, [driver], args.seed, args.round, args.case)
@@ -463,8 +463,8 @@ def failure(args):
     crash = crashes[args.pick]
     seed = int(data.get("seed", 0))
     torch_threads()
-    cfg = tarl.EnvConfig(scenario=args.scenario)
-    env = tarl.DrivingEnv(cfg)
+    cfg = world.EnvConfig(scenario=args.scenario)
+    env = world.DrivingEnv(cfg)
     args.seed = seed
     try:
         driver, label = make_driver(args, env)

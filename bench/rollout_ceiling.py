@@ -22,7 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
-import tarl  # noqa: E402, I001 (first: it sets OpenMP's wait policy before torch loads)
+import tarl  # noqa: E402, F401, I001 (first: it sets OpenMP's wait policy before torch loads)
 import experiment  # noqa: E402
 import numpy as np  # noqa: E402
 from beyond import rollout_timing  # noqa: E402
@@ -30,6 +30,7 @@ import torch  # noqa: E402
 from analysis.compare import read_row  # noqa: E402
 from analysis.paired import p_text, paired  # noqa: E402
 from timing_probe import load_tarl  # noqa: E402
+import world  # noqa: E402
 
 OUT = ROOT / "results" / "rollout"
 SCENARIOS = ("intersection", "roundabout")
@@ -52,7 +53,7 @@ def other_row(scenario: str, timing: str) -> dict:
 def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, commit: bool, out: Path = OUT):
     """Rounds 0..rounds-1 with the rollout timing, one at a time, each kept (and committed) as it finishes: in
     `workers` processes, or with none in this one, on the env that loaded the policy."""
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
+    env = world.DrivingEnv(world.EnvConfig(scenario=scenario))
     trainer = load_tarl(env, scenario)  # the shipped seed-0 policy
     if workers:  # the env is needed here only to play the rounds in this process
         env.close()

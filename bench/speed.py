@@ -49,8 +49,9 @@ import torch  # noqa: E402
 from plain_sac import PlainSAC  # noqa: E402
 from tarl import SAC, SACConfig  # noqa: E402
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
+import world  # noqa: E402
 
-OBS_DIM, LOW, HIGH = tarl.OBS_DIM, -3.0, 2.0  # the observation; the actor's bounds [m/s^2]
+OBS_DIM, LOW, HIGH = world.OBS_DIM, -3.0, 2.0  # the observation; the actor's bounds [m/s^2]
 T_MAX = 10  # the paper's T_max: the timing taker's choices T = 1..10, the discrete head's size
 med = statistics.median
 
@@ -138,7 +139,7 @@ def env_section(scenario, rounds, k, seed=1) -> tuple[dict, list]:
     the humans spawning as before; the next full block puts a new ego in. Returns the numbers and
     the planner's inputs met in the full blocks.
     """
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario), render_mode="rgb_array")
+    env = world.DrivingEnv(world.EnvConfig(scenario=scenario), render_mode="rgb_array")
     sim, L = env.sim, env.cfg.length
     env.reset(seed=seed)
     frame = env.render()  # the renderer, made once: its background is drawn here, not in the frames timed
@@ -213,7 +214,7 @@ def train_section(steps, warmup, rollout, time_limit=60.0) -> dict:
     CPO over two rollouts of `rollout` steps and their updates (SafeRLConfig's N: 2,048)."""
     out = {}
     # a loop of Alg. 1 ends with its episode: --quick shortens episodes, or a few steps become hundreds
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
+    env = world.DrivingEnv(world.EnvConfig(scenario="roundabout", time_limit=time_limit))
     sac_cfg = SACConfig(learning_starts=256)
     # plain SAC = Alg. 1 step 1 (the actor loop alone); TARL without its step 1: both loops
     for phase, timing in (("sac", "none"), ("tarl", "taker")):
@@ -231,7 +232,7 @@ def train_section(steps, warmup, rollout, time_limit=60.0) -> dict:
     budget, share = 500_000, tarl.TrainConfig().sac_fraction  # Table 2's N_train; Alg. 1 step 1's share
     hours = budget * (share / out["sac"] + (1 - share) / out["tarl"]) / 3600
     for algo in ("ppo-lag", "cpo"):  # env-bound: a rollout of N steps, then one update on it
-        env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout", time_limit=time_limit))
+        env = world.DrivingEnv(world.EnvConfig(scenario="roundabout", time_limit=time_limit))
         tc = tarl.TrainConfig(steps=2 * rollout, log_every=10**9, checkpoint_every=10**9)
         trainer = baselines.OnPolicyTrainer(env, algo, tc, log=lambda *a: None, cfg=baselines.SafeRLConfig(rollout=rollout))
         start = time.perf_counter()
@@ -250,7 +251,7 @@ def cases_section(n, rounds) -> dict:
     """What the fixed test cases cost on the roundabout: recording a round of n cases (the traffic alone,
     saved every case_gap s) and loading one, against what the former protocol paid instead: one restart
     with its warm-up per round, and nothing per case. The episodes themselves cost the same either way."""
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout"))
+    env = world.DrivingEnv(world.EnvConfig(scenario="roundabout"))
     record, load, restart = [], [], []
     with tempfile.TemporaryDirectory() as folder:
         for r in range(rounds):

@@ -50,6 +50,7 @@ import experiment  # noqa: E402
 import matplotlib  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+import world  # noqa: E402
 
 matplotlib.use("Agg")
 
@@ -60,7 +61,7 @@ WINDOW = 3.0  # [s] before a collision: Sec. 5.5's window
 OUTCOMES = ("arrival", "collision", "timeout")
 
 
-def load_tarl(env: tarl.DrivingEnv, scenario: str, path: Path | None = None, algo: str = "tarl"):
+def load_tarl(env: world.DrivingEnv, scenario: str, path: Path | None = None, algo: str = "tarl"):
     """The shipped seed-0 policy of TARL (or of a variant with a timing taker, --algo): trainer.driver (learned
     timing), .actor, .timing_taker."""
     path = path or ROOT / "results" / "runs" / f"{scenario}-{algo}-s0" / "policy.pt"
@@ -139,7 +140,7 @@ def probe(scenario: str, cases: int, every: int, crash_search: int, crash_cases:
           t_max: int | None = None, log=print, critic: Path | None = None, algo: str = "tarl") -> dict:
     """Every branch of every state of `scenario`, with the wall time and the settings. critic: a ckpt.pt of the
     shipped run (policy.pt holds no critic): the states alone, with its timing taker's Q(s, a, T), no branch."""
-    t0, env = time.time(), tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
+    t0, env = time.time(), world.DrivingEnv(world.EnvConfig(scenario=scenario))
     try:
         trainer = load_tarl(env, scenario, algo=algo)
         if critic is not None:
@@ -374,7 +375,7 @@ def figure(results: list[dict], path: Path):
 
 
 def report(out: Path = OUT, log=print):
-    results = [json.loads(p.read_text()) for s in sorted(tarl.SCENARIOS) for p in sorted(out.glob(f"{s}*.json"))]
+    results = [json.loads(p.read_text()) for s in sorted(world.SCENARIOS) for p in sorted(out.glob(f"{s}*.json"))]
     if not results:
         raise SystemExit(f"no results in {out}: run the probe first")
     (out / "summary.md").write_text(markdown(results))
@@ -384,7 +385,7 @@ def report(out: Path = OUT, log=print):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scenario", choices=(*sorted(tarl.SCENARIOS), "both"), default="both")
+    p.add_argument("--scenario", choices=(*sorted(world.SCENARIOS), "both"), default="both")
     p.add_argument("--cases", type=int, default=8, help="test cases of round 0 whose states are branched from")
     p.add_argument("--every", type=int, default=20, help="[steps] between the branch states of a case")
     p.add_argument("--crash-search", type=int, default=200, help="test cases of round 0 searched for collisions")
@@ -416,7 +417,7 @@ def main(argv=None):
         old.update(states=new["states"], alpha=new["alpha"])
         (args.out / name(sc)).write_text(json.dumps(old))
     if not args.report and not args.critic:
-        for sc in sorted(tarl.SCENARIOS) if args.scenario == "both" else [args.scenario]:
+        for sc in sorted(world.SCENARIOS) if args.scenario == "both" else [args.scenario]:
             res = probe(sc, args.cases, args.every, args.crash_search, args.crash_cases, args.crash_every, algo=args.algo)
             (args.out / name(sc)).write_text(json.dumps(res))
             print(f"{sc}: {len(res['branches'])} branches in {res['wall_s'] / 60:.1f} min -> {args.out / name(sc)}")

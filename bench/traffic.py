@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import tarl  # noqa: E402
+import world  # noqa: E402
 
 
 def measure(scenario: str, seconds: float, seed: int) -> dict:
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario=scenario))
+    env = world.DrivingEnv(world.EnvConfig(scenario=scenario))
     env.rng = np.random.default_rng(seed)
     env._start(seed)  # SUMO with the environment's settings, warmed up
     sim, dt = env.sim, env.cfg.dt
@@ -62,7 +62,7 @@ def measure(scenario: str, seconds: float, seed: int) -> dict:
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--scenario", choices=sorted(tarl.SCENARIOS), default="intersection")
+    p.add_argument("--scenario", choices=sorted(world.SCENARIOS), default="intersection")
     p.add_argument("--seconds", type=float, default=1000.0)
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     a = p.parse_args()

@@ -48,6 +48,7 @@ import experiment  # noqa: E402
 import figures  # noqa: E402
 import scene  # noqa: E402
 import tarl  # noqa: E402
+import world  # noqa: E402
 
 TIMING_SPEC = re.compile(r"^(learned|phased|random|fixed|cap|rollout|distilled)(=.+)?$")  # tarl.py --timing's names
 HEADER, STRIP = 22, 56  # [px] a side's title line above the view, the beta/T strip below it
@@ -235,8 +236,8 @@ def video(args) -> list[dict]:
         fail(f"--eval {args.eval} is of the {eval_data['scenario']} with --seed {eval_data.get('seed', 0)}, "
              f"not --scenario {args.scenario} --seed {args.seed}")
     figures.torch_threads()
-    cfg = tarl.EnvConfig(scenario=args.scenario)
-    env = tarl.DrivingEnv(cfg)
+    cfg = world.EnvConfig(scenario=args.scenario)
+    env = world.DrivingEnv(cfg)
     try:
         drivers = [figures.make_driver(side, env) for side in sides]  # the checkpoints, before any simulation
         episodes = figures.replay(env, [d for d, _ in drivers], args.seed, args.round, args.case)

@@ -335,6 +335,11 @@ class DistilledTiming(RolloutTiming):
         return int(self.student.choose(design(features(env, a), self.student.inputs))[0])
 
 
+def driver(spec: str, trainer) -> DistilledTiming:
+    """--timing distilled=PATH of a loaded model (experiment.timing_override): its actor, timed by the student."""
+    return DistilledTiming(trainer.actor, parse(spec), trainer.seed, trainer.tc.timing)
+
+
 def parse(spec: str):
     """--timing distilled=PATH: the Student at PATH; None if spec is not a distilled timing."""
     name, eq, path = spec.partition("=")

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 import tarl
-from tarl import DrivingEnv, TimingConfig, beta, execute
-from world import HUMAN_RANGES
+from tarl import TimingConfig, beta, execute
+from world import HUMAN_RANGES, DrivingEnv
 
 # ---- Branching the world: DrivingEnv.save_state and restore_state, and a future drawn anew ---------------------
 
@@ -138,6 +138,11 @@ def play_branch(env: DrivingEnv, actor, state: dict, T: int, rng: np.random.Gene
         if on_step is not None:
             on_step()
     return rewards
+
+
+def driver(spec: str, trainer) -> RolloutTiming:
+    """--timing rollout[=T1,T2,...] of a loaded model (experiment.timing_override): its actor, timed by the rollout."""
+    return RolloutTiming(trainer.actor, trainer.seed, trainer.tc.timing, parse(spec))
 
 
 def parse(spec: str) -> RolloutConfig | None:

@@ -22,7 +22,7 @@ import torch
 
 from beyond import rollout_timing
 import tarl
-from tarl import OBS_DIM
+from world import OBS_DIM
 
 
 class ActorTargetTrainer(tarl.Trainer):
@@ -84,10 +84,11 @@ class MinTargetTrainer(ActorTargetTrainer):
     """TARL whose timing critic bootstraps from the lower of its own soft value and the actor's, updated every step.
 
     The actor's value alone (ActorTargetTrainer) lowered the intersection's collisions but froze the ego at the
-    roundabout's entry (RESULTS.md, 8): V_a(s_t+T) is the value of the actor driving from s_t+T on, so a long T
-    looks as good as T = 1 wherever the actor's critic is content, and the cost of waiting again and again never
-    reaches the target. The timing taker's own V does carry that cost (8 timing updates stopped the freeze,
-    docs/RESULTS.md, 7) but misses the rare dangers that the actor's critic sees. Eq. (9)'s target takes the lower:
+    roundabout's entry (docs/RESULTS.md, "Beyond the paper"): V_a(s_t+T) is the value of the actor driving from
+    s_t+T on, so a long T looks as good as T = 1 wherever the actor's critic is content, and the cost of waiting
+    again and again never reaches the target. The timing taker's own V does carry that cost (8 timing updates
+    stopped the freeze, same section) but misses the rare dangers that the actor's critic sees. Eq. (9)'s target
+    takes the lower:
 
         y = r_T + gamma^T (1 - delta) min(V_T(s_t+T), V_a(s_t+T)),
 

@@ -115,8 +115,8 @@ class Shipped:
         self.env = world.DrivingEnv(self.cfg)
         # the networks as tarl.Trainer builds and loads them (without its 2-second replay buffers)
         sac, timing = tarl.SACConfig(**state["config"]["sac"]), experiment.checkpoint_timing(state)
-        actor = tarl.SAC(tarl.OBS_DIM, act_dim=1, low=[self.cfg.a_min], high=[self.cfg.a_max], cfg=sac)
-        taker = tarl.SAC(tarl.OBS_DIM + 1, n_actions=timing.t_max, cfg=sac)
+        actor = tarl.SAC(world.OBS_DIM, act_dim=1, low=[self.cfg.a_min], high=[self.cfg.a_max], cfg=sac)
+        taker = tarl.SAC(world.OBS_DIM + 1, n_actions=timing.t_max, cfg=sac)
         actor.load_state_dict(state["actor"])
         taker.load_state_dict(state["timing_taker"])
         self.driver = tarl.Driver("taker", actor, taker, SEED, timing)  # TARL's timing: experiment.ROWS["tarl"]

@@ -12,6 +12,7 @@ from torch.distributions import Normal, kl_divergence
 
 import experiment
 import tarl
+import world
 from baselines import (ConstrainedSAC, CostConstraint, GaussianPolicy, Lagrange, OnPolicyTrainer, PIDLagrange,
                        SafeRLConfig, SafeSACTrainer, backtracking_line_search, conjugate_gradient, cost_td_target,
                        cpo_direction, fisher_vector_product, gae, lagrangian_advantage, ppo_clip_loss, value_net)
@@ -376,7 +377,7 @@ def test_cost_constraint_state_round_trips_through_a_plain_checkpoint(tmp_path):
 # d < 0 is a limit no policy meets: lambda must rise at every update of so short a run
 SMALL_SAFE = SafeRLConfig(cost_limit=-0.5, rollout=128, epochs=2, minibatch=32, hidden=16)
 SMALL_TRAIN = tarl.TrainConfig(steps=384, n_actor=15, log_every=10**9, checkpoint_every=10**9)
-OBS = np.random.default_rng(0).uniform(0, 1, (6, tarl.OBS_DIM)).astype(np.float32)
+OBS = np.random.default_rng(0).uniform(0, 1, (6, world.OBS_DIM)).astype(np.float32)
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -389,7 +390,7 @@ def one_thread():  # small networks: one torch thread is as fast, and never stal
 
 @pytest.fixture(scope="module")
 def env():
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(world.EnvConfig(scenario="intersection"))
     yield env
     env.close()
 

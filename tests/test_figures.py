@@ -10,6 +10,7 @@ import pytest
 import figures  # noqa: E402
 import experiment  # noqa: E402
 import tarl  # noqa: E402
+import world  # noqa: E402
 
 HEADER = "step,loop,episode_return,success,collision,timeout,crossing_time,mean_beta\n"
 
@@ -21,7 +22,7 @@ def png_shape(path: Path):
 
 
 def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path):
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(world.EnvConfig(scenario="intersection"))
     small = tarl.TrainConfig(steps=100, log_every=10**9, checkpoint_every=10**9)
     # Table 2's network sizes (make_trainer builds those), a small buffer; an untrained TARL
     trainer = tarl.Trainer(env, "tarl", small, tarl.SACConfig(buffer_size=1000), out=tmp_path, log=lambda *a: None)
@@ -50,7 +51,7 @@ def test_case_replays_case_2_of_round_0_as_the_evaluation_and_draws_it(tmp_path)
     for k in range(n):
         seen, every = ep["others"][k], ep["frames"][k]["vehicles"]
         assert all(np.abs(every - row).sum(1).min() < 1e-6 for row in seen)
-        near = np.hypot(*(every[:, :2] - ep["ego"][k][:2]).T) < tarl.EnvConfig().perception - tarl.EnvConfig().length
+        near = np.hypot(*(every[:, :2] - ep["ego"][k][:2]).T) < world.EnvConfig().perception - world.EnvConfig().length
         assert all(len(seen) and np.abs(seen - row).sum(1).min() < 1e-6 for row in every[near])
     # five snapshots from the departure to leaving the conflict area (or the episode's end)
     frames, end = figures.snapshot_frames(ep, until_collision=False)

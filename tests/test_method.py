@@ -144,7 +144,7 @@ def test_the_timing_buffer_holds_r_T_and_gamma_to_the_T(trainer):
 
 
 def test_torch_threads_wait_passively_unless_the_user_says_otherwise():
-    """Spinning OpenMP threads beside another busy process made training ~40x slower (RESULTS.md, History)."""
+    """Spinning OpenMP threads beside another busy process made training ~40x slower (results/LOG.md, "Speed")."""
     show = "import tarl, os; print(os.environ['OMP_WAIT_POLICY'])"
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the repository's root

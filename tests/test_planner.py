@@ -8,7 +8,7 @@ from planner import PlannerConfig, base_action, idm_acceleration, quintic_coeffi
 
 
 def config(**changes) -> PlannerConfig:
-    """A planner config with the environment's values (tarl.EnvConfig) for the required fields."""
+    """A planner config with the environment's values (world.EnvConfig) for the required fields."""
     return PlannerConfig(dt=0.2, a_min=-3.0, a_max=2.0, length=5.0, width=2.0, **changes)
 
 

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 import timing_probe as tp  # noqa: E402
+from world import DrivingEnv, EnvConfig  # noqa: E402
 
 tarl, experiment = tp.tarl, tp.experiment
 
@@ -15,7 +16,7 @@ tarl, experiment = tp.tarl, tp.experiment
 @pytest.fixture(scope="module")
 def world():
     """The roundabout, TARL's seed-0 policy, round 0's first test case and its recorded episode."""
-    env = tarl.DrivingEnv(tarl.EnvConfig(scenario="roundabout"))
+    env = DrivingEnv(EnvConfig(scenario="roundabout"))
     trainer = tp.load_tarl(env, "roundabout")
     with tempfile.TemporaryDirectory() as folder:
         case = env.record_cases(experiment.test_seed(0, 0), 1, folder)[0]

@@ -7,7 +7,9 @@ import torch
 
 import experiment
 import tarl
-from tarl import EnvConfig, SACConfig, TrainConfig
+import world
+from tarl import SACConfig, TrainConfig
+from world import EnvConfig
 
 # a short schedule with small networks: every phase of Algorithm 1 runs, and both agents update
 SMALL_SAC = SACConfig(batch_size=32, buffer_size=5_000, learning_starts=100, hidden=32)
@@ -18,7 +20,7 @@ QUIET = dict(log=lambda *a: None)
 
 @pytest.fixture(scope="module")
 def env():
-    env = tarl.DrivingEnv(EnvConfig(scenario="intersection"))
+    env = world.DrivingEnv(EnvConfig(scenario="intersection"))
     yield env
     env.close()
 
@@ -37,7 +39,7 @@ def test_short_tarl_run_updates_both_agents_and_writes_a_checkpoint_that_loads(e
     assert state["step"] == trainer.step
     fresh = tarl.Trainer(env, "tarl", SMALL, SMALL_SAC, seed=2, **QUIET)
     fresh.load(state, resume=True)
-    obs = np.random.default_rng(0).uniform(0, 1, (4, tarl.OBS_DIM)).astype(np.float32)
+    obs = np.random.default_rng(0).uniform(0, 1, (4, world.OBS_DIM)).astype(np.float32)
     np.testing.assert_array_equal(fresh.actor.act(obs, True), trainer.actor.act(obs, True))
     x = np.concatenate([obs, np.zeros((4, 1), np.float32)], 1)
     np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
@@ -84,7 +86,7 @@ def test_same_seed_gives_the_same_evaluation(env):
 def test_an_interrupted_evaluation_plays_only_the_rounds_it_had_not_finished(env, tmp_path, monkeypatch):
     def rows(weights_seed):
         torch.manual_seed(weights_seed)
-        actor = tarl.SAC(tarl.OBS_DIM, act_dim=1, low=[env.cfg.a_min], high=[env.cfg.a_max], cfg=SMALL_SAC)
+        actor = tarl.SAC(world.OBS_DIM, act_dim=1, low=[env.cfg.a_min], high=[env.cfg.a_max], cfg=SMALL_SAC)
         return [dict(algo="sac", driver=tarl.Driver("none", actor)), dict(algo="lattice-idm", driver=tarl.Driver("planner"))]
 
     def evaluate(rows, **kw):
@@ -200,7 +202,7 @@ def test_short_runs_of_the_variants_update_both_agents_and_their_checkpoints_loa
     assert state["config"]["train"]["imagination"] == experiment.ROWS[algo].imagination
     fresh = experiment.make_trainer(algo, env, SMALL, seed=2, state=state, **QUIET)
     fresh.load(state, resume=True)
-    obs = np.random.default_rng(0).uniform(0, 1, (4, tarl.OBS_DIM)).astype(np.float32)
+    obs = np.random.default_rng(0).uniform(0, 1, (4, world.OBS_DIM)).astype(np.float32)
     x = np.concatenate([obs, np.zeros((4, 1), np.float32)], 1)
     np.testing.assert_array_equal(fresh.timing_taker.act(x, True), trainer.timing_taker.act(x, True))
     assert fresh.driver.timing == trainer.driver.timing and fresh.tc.imagination == trainer.tc.imagination

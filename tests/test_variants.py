@@ -9,8 +9,8 @@ import torch
 import experiment
 import tarl
 from beyond import variants
-from tarl import OBS_DIM
 from test_train import QUIET, SMALL, SMALL_SAC, env  # noqa: F401 (env: the fixture, the intersection)
+from world import OBS_DIM
 
 
 def fill(trainer, n: int, collisions=()):
