@@ -32,7 +32,6 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import tarl  # noqa: I001 (first: it sets OpenMP's wait policy before torch loads)
-import baselines
 import numpy as np
 import torch
 import world
@@ -46,12 +45,13 @@ class Row:
     label: str
     timing: str  # its tarl.Driver's timing
     step_one: bool  # Algorithm 1's step 1 (plain SAC for TrainConfig.sac_fraction of the steps) comes first
-    trainer: type | str | None  # tarl.Trainer, baselines.py's, a class's name in BEYOND; None: nothing to train
+    trainer: type | str | None  # tarl.Trainer, or "module:Class" imported when the row trains; None: nothing to train
     imagination: str = "phased"  # what its timing imagination executes (TrainConfig.imagination)
     timing_updates: int = 1  # its timing taker's updates per decision (TrainConfig.timing_updates)
 
 
-BEYOND = "beyond.variants"  # the trainers of the rows beyond the paper (PAPER.md, 6), imported only when one trains
+# The trainers of baselines.py and beyond/variants.py (the rows beyond the paper, PAPER.md, 6) are imported only when
+# one of their rows trains: the import circle of `python tarl.py` holds tarl.py and this module alone.
 ROWS = {
     "tarl": Row("TARL", "taker", True, tarl.Trainer),
     "tarl-fixed-t": Row("TARL, T = 2 fixed", "fixed", True, tarl.Trainer),  # ablation: no timing taker
@@ -59,17 +59,19 @@ ROWS = {
     "tarl-consistent": Row("TARL, phased real loop", "phased", True, tarl.Trainer),  # beyond the paper (PAPER.md)
     "tarl-held": Row("TARL, held imagination", "taker", True, tarl.Trainer, "held"),  # beyond the paper (PAPER.md)
     "tarl-utd": Row("TARL, 8 timing updates", "taker", True, tarl.Trainer, timing_updates=8),  # beyond the paper
-    "tarl-actor-target": Row("TARL, actor's critic in Eq. (9)", "taker", True, "ActorTargetTrainer", timing_updates=0),
-    "tarl-rare-replay": Row("TARL, collision replay", "taker", True, "RareReplayTrainer"),  # beyond the paper
-    "tarl-min-target": Row("TARL, lower of both critics in Eq. (9)", "taker", True, "MinTargetTrainer", timing_updates=0),
-    "tarl-branch": Row("TARL, timing from branches", "taker", True, "BranchTrainer"),  # beyond the paper, as the 3 above
+    "tarl-actor-target": Row("TARL, actor's critic in Eq. (9)", "taker", True, "beyond.variants:ActorTargetTrainer",
+                             timing_updates=0),  # beyond the paper
+    "tarl-rare-replay": Row("TARL, collision replay", "taker", True, "beyond.variants:RareReplayTrainer"),  # beyond
+    "tarl-min-target": Row("TARL, lower of both critics in Eq. (9)", "taker", True, "beyond.variants:MinTargetTrainer",
+                           timing_updates=0),  # beyond the paper
+    "tarl-branch": Row("TARL, timing from branches", "taker", True, "beyond.variants:BranchTrainer"),  # beyond
     "sac": Row("SAC", "none", False, tarl.Trainer),  # Algorithm 1's actor loop alone
     "sac-lattice": Row("SAC-Lattice", "switch", False, tarl.Trainer),
     "lattice-idm": Row("Lattice-IDM", "planner", False, None),
-    "sac-lag": Row("SAC-Lag", "none", False, baselines.SafeSACTrainer),
-    "sac-pid": Row("SAC-PID", "none", False, baselines.SafeSACTrainer),
-    "ppo-lag": Row("PPO-Lag", "none", False, baselines.OnPolicyTrainer),
-    "cpo": Row("CPO", "none", False, baselines.OnPolicyTrainer),
+    "sac-lag": Row("SAC-Lag", "none", False, "baselines:SafeSACTrainer"),
+    "sac-pid": Row("SAC-PID", "none", False, "baselines:SafeSACTrainer"),
+    "ppo-lag": Row("PPO-Lag", "none", False, "baselines:OnPolicyTrainer"),
+    "cpo": Row("CPO", "none", False, "baselines:OnPolicyTrainer"),
 }
 
 
@@ -80,7 +82,10 @@ def make_trainer(algo: str, env: DrivingEnv, tc: TrainConfig, seed: int = 0, out
     row = ROWS[algo]
     sac_cfg = SACConfig(**state["config"]["sac"]) if state else SACConfig()
     tc = replace(tc, imagination=row.imagination, timing_updates=row.timing_updates)
-    trainer = getattr(importlib.import_module(BEYOND), row.trainer) if isinstance(row.trainer, str) else row.trainer
+    trainer = row.trainer
+    if isinstance(trainer, str):  # "module:Class", imported now
+        module, _, name = trainer.partition(":")
+        trainer = getattr(importlib.import_module(module), name)
     return trainer(env, algo, tc, sac_cfg, seed, out, log, timing=row.timing, step_one=row.step_one)
 
 
@@ -511,13 +516,6 @@ def parse_args(argv=None):
     return args
 
 
-def env_config(args) -> EnvConfig:
-    """The world of the command line: the scenario and its traffic."""
-    traffic = {k: v for k, v in (("spawn_gap", args.spawn_gap), ("svo_range", args.svo and tuple(args.svo)),
-                                 ("human_level", args.human_level)) if v is not None}
-    return EnvConfig(scenario=args.scenario, **traffic)
-
-
 def machine() -> str:
     """The CPU this run is on: a seed repeats itself bit for bit on one CPU type only (float kernels differ)."""
     try:
@@ -531,7 +529,9 @@ def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # a kill saves like Ctrl-C
-    cfg, rows = env_config(args), []
+    traffic = {k: v for k, v in (("spawn_gap", args.spawn_gap), ("svo_range", args.svo and tuple(args.svo)),
+                                 ("human_level", args.human_level)) if v is not None}
+    cfg, rows = EnvConfig(scenario=args.scenario, **traffic), []  # the world of the command line: scenario, traffic
     timing = checkpoint_timing(args.state) if args.state else TimingConfig(t_max=args.t_max or TimingConfig.t_max)
     timing = timing if args.omega is None else replace(timing, omega=args.omega)
     code = subprocess.run(["git", "-C", str(Path(__file__).parent), "describe", "--always", "--dirty"],
@@ -585,7 +585,8 @@ def main(argv=None):
         env.close()
     print(table(results))
     if "beta_minus" in results[0]:
-        print("1 - beta (Sec. 5.5):", json.dumps(results[0]["beta_minus"]))
+        print("1 - beta, the planner's share (Sec. 5.5): all steps {}, last 3 s before a collision {}, last 1 s {}".format(
+              *("-" if v is None else f"{v:.3f}" for v in results[0]["beta_minus"].values())))
     if args.algo != "lattice-idm" and not args.load:  # the trained row's gradient updates: {"actor": n, "timing": n}
         results[0]["updates"] = dict(trainer.updates)
     (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code,

@@ -210,14 +210,17 @@ class TrainLog:
         if loop != "imagination":
             self.recent.append(row)
 
-    def progress(self, step: int, phase: str, extra: str = ""):
+    def progress(self, step: int, phase: str, extra: str = "", warm_up: bool = False):
+        """A progress line, its rate over the last log_every steps. warm_up: those steps made no update (SAC's
+        uniform actions, several times faster), so their rate would promise too soon an end: no ETA yet."""
         self.clock.append((time.time(), step))
         if len(self.clock) < 2:  # the first call starts the clock
             return
         rate = (step - self.clock[0][1]) / max(self.clock[-1][0] - self.clock[0][0], 1e-9)
+        eta = "after the warm-up" if warm_up else f"{max(0, self.total - step) / max(rate, 1e-9) / 60:5.1f} min"
         succ, coll, ret = (np.mean([r[k] for r in self.recent]) if self.recent else np.nan for k in (3, 4, 2))
-        self.print(f"step {step:>7}/{self.total} [{phase}] {rate:5.0f} steps/s, ETA {max(0, self.total - step) / max(rate, 1e-9) / 60:5.1f} "
-                   f"min | last {len(self.recent)} real episodes: success {succ:.2f}, collision {coll:.2f}, return {ret:6.1f}{extra}")
+        self.print(f"step {step:>7}/{self.total} [{phase}] {rate:5.0f} steps/s, training ETA {eta} | last "
+                   f"{len(self.recent)} real episodes: success {succ:.2f}, collision {coll:.2f}, return {ret:6.1f}{extra}")
 
     def flush(self):
         if self.out is not None:
@@ -269,6 +272,9 @@ class Trainer:
     def run(self):
         """Algorithm 1; the steps of both loops count towards TrainConfig.steps."""
         self.obs, _ = self.env.reset(seed=self.seed + self.step)  # resumed: SUMO's state is not saved
+        self.log.print(f"a line every {self.tc.log_every:,} steps, by phase: [Alg. 1 step 1, SAC] plain SAC first, "
+                       f"[timing imagination] the timing taker learns (lines 4-15), [{self.algo}] the actor in the real"
+                       " loop (lines 16-24); the ETA is training's, the evaluation comes after it")
         self.log.progress(self.step, "")
         try:
             # Alg. 1 line 2, step 1: a regular SAC model as the actor
@@ -376,7 +382,8 @@ class Trainer:
             self.episode = dict(ret=0.0, betas=[])
         if self.step % self.tc.log_every == 0:
             phase = {"step1": "Alg. 1 step 1, SAC", "real": self.algo, "imagination": "timing imagination"}[loop]
-            self.log.progress(self.step, phase, f" | updates actor {self.updates['actor']}, timing {self.updates['timing']}")
+            self.log.progress(self.step, phase, f" | updates actor {self.updates['actor']}, timing {self.updates['timing']}",
+                              warm_up=self.step <= self.sac_cfg.learning_starts)
         if self.step % self.tc.checkpoint_every == 0:
             self.save()
 

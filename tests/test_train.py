@@ -1,5 +1,8 @@
 """Algorithm 1 on the real simulator: short runs that really learn, checkpoints, determinism, the command line."""
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,7 +186,20 @@ def test_the_progress_eta_follows_the_recent_rate_not_the_fast_warm_up(monkeypat
     for step in range(2_000, 22_001, 2_000):  # 1,000 steps/s for 4,000 steps, then 100 steps/s
         log.progress(step, "x")
         now[0] += 2.0 if step < 6_000 else 20.0
-    assert " 100 steps/s, ETA  13.0 min" in lines[-1]  # (100,000 - 22,000) / 100 s
+    assert " 100 steps/s, training ETA  13.0 min" in lines[-1]  # (100,000 - 22,000) / 100 s
+
+
+def test_the_first_progress_line_gives_no_eta_from_the_warm_up(monkeypatch):
+    """The steps before SAC's first update run several times faster: their rate gives no ETA."""
+    now, lines = [0.0], []
+    monkeypatch.setattr(tarl.time, "time", lambda: now[0])
+    log = tarl.TrainLog(None, 100_000, log=lines.append)
+    log.progress(0, "")
+    now[0] += 2.0
+    log.progress(2_000, "Alg. 1 step 1, SAC", warm_up=True)
+    now[0] += 20.0
+    log.progress(4_000, "Alg. 1 step 1, SAC")
+    assert "training ETA after the warm-up" in lines[0] and "ETA  16.0 min" in lines[1]  # 96,000 steps at 100/s
 
 
 @pytest.mark.parametrize("algo", ["tarl-consistent", "tarl-held", "tarl-utd"])
@@ -251,3 +267,11 @@ def test_rows_evaluated_beside_training_are_the_rows_evaluated_together(tmp_path
     assert [r["algo"] for r in beside] == [r["algo"] for r in together] == ["tarl", "tarl-step1", "lattice-idm"]
     for x, y in zip(beside, together):
         assert x["cases"] == y["cases"] and x["success_rate"] == y["success_rate"]
+
+
+def test_the_command_line_loads_baselines_and_beyond_only_for_their_rows():
+    """`python tarl.py` needs tarl.py and experiment.py (its import circle), not the safe-RL rows or beyond/."""
+    code = "import sys, experiment; print(sorted(m for m in sys.modules if m.split('.')[0] in ('baselines', 'beyond')))"
+    out = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[1], capture_output=True,
+                         text=True, check=True).stdout
+    assert out.strip() == "[]"
