@@ -31,7 +31,8 @@ a folder's such student, or a student file; into labels/...-dagger-decision-B, -
 `train --dagger B` fits every student on both sets and `evaluate --dagger B` plays them (in
 SCENARIO-sSEED[-decision]-dagger). After it, the same rule in that folder names the student of record.
 
-report: the teacher's labels measured (distil.reliability, distil.replicated_gain), every student's gate on its
+report: first the test registered on 2026-12-07 for the decision students' DAgger round (REGISTERED,
+registered_test: the students of record at the intersection, pooled over seeds 0, 3 and 4); then the teacher's labels measured (distil.reliability, distil.replicated_gain), every student's gate on its
 held-out decisions, then every evaluated student's verdict: the rule registered before any student was evaluated
 (RESULTS.md, "What the timing adds"): a student passes if it beats the better of the trained ablation rows
 tarl-fixed-t and tarl-random-t of the seed (the one with more successes on these cases) on the roundabout, McNemar
@@ -445,6 +446,45 @@ def gate_report(out: Path, found: list[tuple], cache: dict | None = None) -> lis
     return lines + [""]
 
 
+# The test registered on 2026-12-07 before any of its labels was used (results/distil/README.md): the scenario, its
+# actor seeds, the row each student of record is paired with, the level (0.025: a second try may share 0.05)
+REGISTERED = dict(scenario="intersection", seeds=(0, 3, 4), row="tarl-random-t", alpha=0.025, ahead=2)
+
+
+def registered_test(out: Path, runs: Path = ROOT / "results" / "runs") -> list[str]:
+    """The registered test: per seed, the student of record (lower_regret of the decision students after their DAgger
+    round, SCENARIO-sK-decision-dagger) against that seed's REGISTERED row on the same test cases; it passes if the
+    exact McNemar test pooled over the seeds' cases has p < alpha, the student ahead, and it is ahead on at least
+    `ahead` seeds. Empty until every seed's student of record has played."""
+    from analysis.compare import read_row
+    from analysis.paired import p_text
+    from rollout_ceiling import paired
+    scenario, row, rng = REGISTERED["scenario"], REGISTERED["row"], np.random.default_rng(0)
+    mine, theirs, each, lines = [], [], [], []
+    for k in REGISTERED["seeds"]:
+        folder = students_dir(out, scenario, k, True, "decision")
+        if not (folder / "students.json").exists() or not (folder / f"eval-{lower_regret(folder)}.json").exists():
+            return []
+        name = lower_regret(folder)
+        mine.append(read_row(folder / f"eval-{name}.json"))
+        theirs.append(read_row(runs / f"{scenario}-{row}-s{k}" / "eval.json", row))
+        each.append(r := paired(mine[-1], theirs[-1], rng))
+        lines.append(f"| {k} | {name} | {r['mine']:.3f} | {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | "
+                     f"{p_text(r['p'])} |")
+    r = paired(mine, theirs, rng)
+    ahead = sum(x["only_mine"] > x["only_other"] for x in each)
+    passes = r["p"] < REGISTERED["alpha"] and r["only_mine"] > r["only_other"] and ahead >= REGISTERED["ahead"]
+    return ["## The test registered on 2026-12-07", "",
+            f"Each seed's student of record (after its DAgger round) against that seed's `{row}` on its "
+            f"{scenario}'s test cases; pooled exact McNemar p < {REGISTERED['alpha']}, the student ahead, and ahead "
+            f"on at least {REGISTERED['ahead']} of {len(REGISTERED['seeds'])} seeds.", "",
+            f"| actor seed | student of record | its success | `{row}` | student only / it only arrives | McNemar p |",
+            "|---|---|---|---|---|---|", *lines,
+            f"| pooled | | {r['mine']:.3f} | {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | {p_text(r['p'])} |",
+            "", f"Ahead on {ahead} of {len(REGISTERED['seeds'])} seeds: the students of record **"
+            + ("pass" if passes else "fail") + "** the registered test.", ""]
+
+
 def report(args) -> str:
     from analysis.compare import read_row
     from analysis.paired import p_text
@@ -513,8 +553,8 @@ def report(args) -> str:
                               f"{r['mine']:.3f} | {best} {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | "
                               f"{p_text(r['p'])} | {verdict} |")
     cache = {}  # label folders read, for both
-    text = "\n".join(head + label_report(args.out, cache) + gate_report(args.out, found, cache) + glance + [""]
-                     + lines) + "\n"
+    text = "\n".join(head + registered_test(args.out) + label_report(args.out, cache) + gate_report(args.out, found, cache)
+                     + glance + [""] + lines) + "\n"
     (args.out / "summary.md").write_text(text)
     return text
 

@@ -302,3 +302,31 @@ def test_in_dagger_the_student_drives_and_the_teacher_labels(cases):
     assert labels and all(d["executed"] == 1 for d in labels) and ep["branch_steps"] > 0
     assert [d["T"] for d in labels] == [best_candidate(cfg, d["returns"].mean(1)) for d in labels]  # the teacher's
     assert set(ep["T"]) == {1, 2}  # the student's T = 1 at its decisions, held; the default elsewhere
+
+
+def test_the_registered_test_pools_the_students_of_record_and_asks_two_seeds_ahead(tmp_path):
+    """Per seed the student of record (lower held-out regret of A and B) against the seed's tarl-random-t: it passes
+    only with pooled McNemar p < 0.025, the student ahead, and ahead on at least 2 of the 3 seeds."""
+    def write(path: Path, algo: str, arrived: list[bool]):
+        cases = [dict(round=0, case=c, start=f"s{c}", outcome="arrival" if a else "collision", crossing_time=20.0
+                      if a else None, steps=100) for c, a in enumerate(arrived)]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(dict(scenario="intersection", seed=0, rows=[dict(algo=algo, cases=cases)])))
+
+    def play(only_student: dict[int, int], only_row: dict[int, int]) -> list[str]:
+        runs = tmp_path / "runs"
+        for k in (0, 3, 4):
+            folder = distillation.students_dir(tmp_path, "intersection", k, True, "decision")
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "students.json").write_text(json.dumps(dict(results={"A": dict(regret=2.0), "B": dict(regret=1.0)})))
+            a, b, same = only_student[k], only_row[k], 100
+            write(folder / "eval-B.json", "tarl", [True] * a + [False] * b + [True] * same)
+            write(runs / f"intersection-tarl-random-t-s{k}" / "eval.json", "tarl-random-t",
+                  [False] * a + [True] * b + [True] * same)
+        return distillation.registered_test(tmp_path, runs)
+
+    assert distillation.registered_test(tmp_path, tmp_path / "runs") == []  # nothing played yet
+    text = "\n".join(play({0: 20, 3: 20, 4: 0}, {0: 5, 3: 5, 4: 5}))  # 40 / 15 pooled, ahead on 2 seeds
+    assert "| 0 | B | " in text and "| pooled | " in text and "40 / 15" in text and "**pass**" in text
+    assert "**fail**" in "\n".join(play({0: 30, 3: 0, 4: 0}, {0: 1, 3: 5, 4: 5}))  # 30 / 11 pooled, ahead on 1 seed
+    assert "**fail**" in "\n".join(play({0: 8, 3: 8, 4: 8}, {0: 5, 3: 5, 4: 5}))  # ahead on 3, p 0.14
