@@ -10,11 +10,12 @@ every row. Only the entry point (`python tarl.py`) and bench/ import it.
     Table 3's rows              ROWS, make_trainer, trained_rows
     Sec. 5.3, Table 3           rollout, play_round, evaluate, summarize, table
     Sec. 5.5                    summarize: 1 - beta before collisions, the share of each T
-    the command line            parse_args, main
+    the command line            parse_args, main; its file: read_eval (eval.json)
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import importlib
 import json
@@ -146,12 +147,10 @@ def rollout(env: DrivingEnv, driver: Driver, options: dict | None = None, record
             deterministic: bool = True) -> dict:
     """One episode of `driver` from env.reset(options=options), recorded step by step.
 
-    Per step: the actor's a (nan without an actor), T (0 without a timing), beta, a_base (nan where not
-    needed, unless record), the executed a_bar, the ego's speed v [m/s]; with record, also the ego's
-    (x, y, heading), the others' (M, 3) (x, y, heading) and the base planner's planned (K, 2) x, y.
-    Also: the start's fingerprint, the outcome ("arrival", "collision" or "timeout"), the crossing time
-    [s] (None unless arrived) and the number of steps.
-    """
+    Per step: the actor's a (nan without an actor), T (0 without a timing), beta, a_base (nan where not needed, unless
+    record), the executed a_bar, the ego's speed v [m/s]; with record, also the ego's (x, y, heading), the others'
+    (M, 3) (x, y, heading) and the base planner's planned (K, 2) x, y. Also: the start's fingerprint, the outcome
+    ("arrival", "collision" or "timeout"), the crossing time [s] (None unless arrived) and the number of steps."""
     obs, _ = env.reset(options=options)
     # tarl-random-t: the same timings wherever and whenever the case is played
     driver.new_episode(options["case"]["seed"] if options and "case" in options else None)
@@ -181,9 +180,8 @@ def test_seed(seed: int, round_: int) -> int:
 
 
 def play_round(env: DrivingEnv, drivers: list[Driver], cases: int, seed: int, round_: int) -> list[list[dict]]:
-    """One round of Table 3 for every driver: the round's test cases (record_cases, once), each played by
-    each driver acting deterministically (the actor's mean, the most likely T). Per driver, the rollout()
-    of each case, in order."""
+    """One round of Table 3 for every driver: the round's test cases (record_cases, once), each played by each driver
+    acting deterministically (the actor's mean, the most likely T). Per driver, the rollout() of each case, in order."""
     with tempfile.TemporaryDirectory() as folder:
         recorded = env.record_cases(test_seed(seed, round_), cases, folder)
         return [[dict(rollout(env, driver, {"case": case}), round=round_, case=c) for c, case in enumerate(recorded)]
@@ -195,8 +193,7 @@ def _worker(conn):
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's: it ends the workers
     torch.set_num_threads(1)
     env = None
-    while (job := conn.recv()) is not None:
-        cfg, drivers, cases, seed, r = job
+    for cfg, drivers, cases, seed, r in iter(conn.recv, None):  # None: no more rounds
         try:
             env = env if env is not None and env.cfg == cfg else DrivingEnv(cfg)
             conn.send((r, play_round(env, drivers, cases, seed, r), None))
@@ -208,8 +205,7 @@ def play_in_workers(jobs: list[tuple], n: int):
     """Yield (r, episodes) as the rounds of `jobs` finish in n processes. A worker that fails or dies (a SUMO
     crash, an out-of-memory kill) ends the evaluation at once with one line naming its round; the workers
     never outlive this generator."""
-    ctx = mp.get_context("spawn")
-    workers, todo = [], list(jobs)
+    ctx, workers, todo = mp.get_context("spawn"), [], list(jobs)
     try:
         for _ in range(min(n, len(jobs))):
             here, there = ctx.Pipe()
@@ -221,10 +217,8 @@ def play_in_workers(jobs: list[tuple], n: int):
             for w in workers:
                 if w["round"] is None and todo:
                     w["round"] = todo[0][-1]
-                    try:
+                    with contextlib.suppress(OSError):  # it died idle
                         w["conn"].send(todo.pop(0))
-                    except OSError:  # it died idle
-                        pass
             busy = [w for w in workers if w["round"] is not None]
             mp.connection.wait([w["conn"] for w in busy] + [w["proc"].sentinel for w in busy], timeout=1.0)
             for w in busy:
@@ -355,13 +349,11 @@ def mean_std(x) -> dict:
 def summarize(row: dict, rounds: list[list[dict]], cfg: EnvConfig, seed: int) -> dict:
     """One row of Table 3 from its rounds of played cases, each number a mean +- std over rounds.
 
-    success, collision and timeout rates (they sum to 1). crossing_time: the mean over a round's
-    successes, the paper's measure (a round without any is null, counted in rounds_without_success);
-    crossing_time_all: over the cases that did not collide, a timeout counted at the time limit, so
-    a model that times out on hard cases does not look faster. Sec. 5.5 (rows that blend): mean
-    (1 - beta) over all steps and in the last 3 s and 1 s before collisions; the share of steps at each
-    T. cases: each case's round, case, start fingerprint, outcome, crossing time [s] and steps.
-    """
+    success, collision and timeout rates (they sum to 1). crossing_time: the mean over a round's successes, the paper's
+    measure (a round without any is null, counted in rounds_without_success); crossing_time_all: over the cases that did
+    not collide, a timeout counted at the time limit, so a model that times out on hard cases does not look faster.
+    Sec. 5.5 (rows that blend): mean (1 - beta) over all steps and in the last 3 s and 1 s before collisions; the
+    share of steps at each T. cases: each case's round, case, start fingerprint, outcome, crossing time [s] and steps."""
     rate = lambda outcome: mean_std([np.mean([ep["outcome"] == outcome for ep in r]) for r in rounds])  # noqa: E731
     crossing = [[ep["crossing_time"] for ep in r if ep["outcome"] == "arrival"] for r in rounds]
     crossing_all = [[ep["crossing_time"] or cfg.time_limit for ep in r if ep["outcome"] != "collision"] for r in rounds]
@@ -525,6 +517,12 @@ def machine() -> str:
     return f"{model}, {os.cpu_count()} cores, {platform.machine()}, torch {torch.__version__}"
 
 
+def read_eval(path: Path) -> dict:
+    """An eval.json (main writes it) as written, of world 1 if it names none (written before worlds had a version)."""
+    data = json.loads(Path(path).read_text())
+    return {**data, "world": data.get("world", 1)}
+
+
 def main(argv=None):
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -540,7 +538,7 @@ def main(argv=None):
     workers, keep = 0 if args.gui else args.workers, args.out / "eval-rounds"
     planner = dict(algo="lattice-idm", label="Lattice-IDM", driver=Driver("planner"))
     beside = Beside(cfg, args.eval_rounds, args.eval_cases, args.seed, keep)  # one core trains, one evaluates
-    spare = args.algo != "lattice-idm" and not args.load and args.eval_rows == "all" and workers >= 2
+    trains = args.algo != "lattice-idm" and not args.load  # a row trained here, not loaded
     try:
         if args.algo != "lattice-idm":
             share = TrainConfig.sac_fraction if args.step_one is None else args.step_one / args.steps
@@ -549,7 +547,7 @@ def main(argv=None):
             if args.state:
                 trainer.load(args.state, resume=args.resume)
             if not args.load:
-                if spare:
+                if args.eval_rows == "all" and workers >= 2:  # Lattice-IDM and the step-1 model in spare workers
                     beside.start(planner)
                     if trainer.sac_actor is None:
                         trainer.after_step_one = lambda: beside.start(trained_rows(trainer)[1])
@@ -578,8 +576,7 @@ def main(argv=None):
             done.update(beside.results())
             results = [done[row["algo"]] for row in rows]
         except KeyboardInterrupt:
-            trained_here = not args.load and args.algo != "lattice-idm"
-            again = f"continue with --resume --out {args.out}" if trained_here else "run the same command again"
+            again = f"continue with --resume --out {args.out}" if trains else "run the same command again"
             raise SystemExit(f"kept the finished rounds in {keep}; {again} to play the others") from None
     finally:
         env.close()
@@ -587,7 +584,7 @@ def main(argv=None):
     if "beta_minus" in results[0]:
         print("1 - beta, the planner's share (Sec. 5.5): all steps {}, last 3 s before a collision {}, last 1 s {}".format(
               *("-" if v is None else f"{v:.3f}" for v in results[0]["beta_minus"].values())))
-    if args.algo != "lattice-idm" and not args.load:  # the trained row's gradient updates: {"actor": n, "timing": n}
+    if trains:  # the trained row's gradient updates: {"actor": n, "timing": n}
         results[0]["updates"] = dict(trainer.updates)
     (args.out / "eval.json").write_text(json.dumps(dict(scenario=args.scenario, seed=args.seed, code=code,
                                                         world=world.WORLD_VERSION, machine=machine(), rows=results)))

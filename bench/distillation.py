@@ -540,7 +540,7 @@ def report(args) -> str:
                 file = ROOT / "results" / path.format(s=scenario, k=seed)
                 if file.exists():
                     res[label] = r = paired(mine, read_row(file, algo), rng)
-                    lines.append(f"| {label} | {json.loads(file.read_text()).get('world', 1)} | {r['other']:.3f} | "
+                    lines.append(f"| {label} | {experiment.read_eval(file)['world']} | {r['other']:.3f} | "
                                  f"{r['only_mine']} / {r['only_other']} | {p_text(r['p'])} | {r['diff']:+.3f} "
                                  f"[{r['low']:+.3f}, {r['high']:+.3f}] |")
             if all(a in res for a in ABLATIONS):

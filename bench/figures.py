@@ -439,10 +439,10 @@ def read_eval(path: Path) -> dict:
     if not path.is_file():
         fail(f"--eval {path}: no such file")
     try:
-        data = json.loads(path.read_text())
-        assert isinstance(data, dict) and isinstance(data["rows"], list) and "scenario" in data
+        data = experiment.read_eval(path)
+        assert isinstance(data["rows"], list) and "scenario" in data
         return data
-    except (json.JSONDecodeError, KeyError, AssertionError, UnicodeDecodeError):
+    except (json.JSONDecodeError, KeyError, AssertionError, UnicodeDecodeError, TypeError):  # TypeError: not a dict
         fail(f"--eval {path} is not an eval.json of tarl.py (a scenario and rows)")
 
 

@@ -308,7 +308,7 @@ def finished(path: Path, want: dict) -> dict | None:
     """The row of an earlier run's eval.json at `path` if it holds the evaluation `want` (planned): the same command
     again plays only the seeds it had not finished."""
     try:
-        (row,) = json.loads(path.read_text())["rows"]
+        (row,) = experiment.read_eval(path)["rows"]
     except (OSError, ValueError, KeyError, TypeError):  # none, one cut short, another layout
         return None
     return row if all(row.get(k) == v for k, v in want.items()) else None

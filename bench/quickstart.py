@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 CELL = ROOT / "results" / "runs" / "roundabout-tarl-s0"
 BEFORE = "2e860a9"  # the last commit whose quick start trained with 2 threads and evaluated every row at the end
 
@@ -45,7 +46,8 @@ def run(rev: str, folder: Path) -> dict:
 
 def same_as_cell(out: Path) -> dict:
     """How the run in `out` compares with the committed cell: its training log and each row's case outcomes."""
-    mine, cell = (json.loads((d / "eval.json").read_text()) for d in (out, CELL))
+    import experiment  # here, after both runs: it loads torch
+    mine, cell = (experiment.read_eval(d / "eval.json") for d in (out, CELL))
     rows = {}
     for row in mine["rows"]:
         theirs = {(c["round"], c["case"]): c for c in next(r for r in cell["rows"] if r["algo"] == row["algo"])["cases"]}
@@ -70,7 +72,6 @@ def main(argv=None):
         before, after = (run(rev, Path(folder)) for rev in (args.before, args.after))
         after["against_the_cell"] = same_as_cell(Path(after.pop("out")))
         before.pop("out")
-    sys.path.insert(0, str(ROOT))
     import experiment  # here: it loads torch
     result = dict(machine=experiment.machine(), before=before, after=after,
                   ratio=round(after["minutes"] / before["minutes"], 2))

@@ -18,14 +18,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = ROOT / "results" / "runs"
 sys.path.insert(0, str(ROOT))
+import experiment  # noqa: E402
 from world import WORLD_VERSION  # noqa: E402
 
 TABLE = ROOT / "results" / "reevaluated.md"
-
-
-def world_of(path: Path) -> int:
-    """The world an eval.json was played in (1: before WORLD_VERSION was written)."""
-    return json.loads(path.read_text()).get("world", 1)
 
 
 def changed(old: dict, new: dict) -> list[str]:
@@ -42,18 +38,17 @@ def changed(old: dict, new: dict) -> list[str]:
 
 def reevaluate(cell: str, args) -> bool:
     folder = RUNS / cell
-    old = json.loads((folder / "eval.json").read_text())
+    old = experiment.read_eval(folder / "eval.json")
     rows = [r["algo"] for r in old["rows"]]
-    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed: it loads torch
+    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed
     done = evaluate_policy(folder / "policy.pt", old["scenario"], rows[0], old["seed"], args.work / cell,
                            args.work / f"{cell}.log", "--eval-rows", "all" if "lattice-idm" in rows[1:] else "trained",
                            workers=args.workers)
     if done is None:
         return False
-    new = json.loads(done.read_text())
-    new["previous"] = dict(world=old.get("world", 1), code=old.get("code"))  # what it replaces
+    new = dict(experiment.read_eval(done), previous=dict(world=old["world"], code=old.get("code")))  # what it replaces
     (folder / "eval.json").write_text(json.dumps(new))
-    lines = [f"- {cell} (world {old.get('world', 1)} -> {new['world']}): " + "; ".join(changed(old, new))]
+    lines = [f"- {cell} (world {old['world']} -> {new['world']}): " + "; ".join(changed(old, new))]
     print(lines[0], flush=True)
     head = ["# Cells evaluated again in a newer world", "",
             "Written by `python bench/reevaluate.py`: each cell's committed policy on the same test cases, before and "
@@ -74,13 +69,13 @@ def main(argv=None):
     args = p.parse_args(argv)
     if args.stale:
         for f in sorted(RUNS.glob("*/eval.json")):
-            if world_of(f) != WORLD_VERSION:
-                print(f"{f.parent.name}\tworld {world_of(f)}\t{'policy.pt' if (f.parent / 'policy.pt').exists() else '-'}")
+            if (played := experiment.read_eval(f)["world"]) != WORLD_VERSION:
+                print(f"{f.parent.name}\tworld {played}\t{'policy.pt' if (f.parent / 'policy.pt').exists() else '-'}")
         return
     bad = [c for c in args.cells if not (RUNS / c / "policy.pt").exists() or not (RUNS / c / "eval.json").exists()]
     if bad or not args.cells:
         p.error(f"no committed policy.pt and eval.json for: {', '.join(bad)}" if bad else "name at least one cell")
-    todo = [c for c in args.cells if world_of(RUNS / c / "eval.json") != WORLD_VERSION]
+    todo = [c for c in args.cells if experiment.read_eval(RUNS / c / "eval.json")["world"] != WORLD_VERSION]
     print(f"{len(todo)} of {len(args.cells)} cells to evaluate in world {WORLD_VERSION}", flush=True)
     failed = [c for c in todo if not reevaluate(c, args)]
     if failed:

@@ -10,7 +10,6 @@ results/retime/SCENARIO-tarl-sSEED-SPEC.json; the summary sets each beside TARL'
 eval.json) and beside the ablations trained with that timing (tarl-fixed-t, tarl-random-t), case by case.
 """
 import argparse
-import json
 import re
 import shutil
 import sys
@@ -19,6 +18,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+import experiment  # noqa: E402
 from world import WORLD_VERSION  # noqa: E402
 
 SCENARIOS = ("intersection", "roundabout")
@@ -32,7 +32,7 @@ def cell(scenario: str, seed: int, timing: str) -> str:
 
 def run(scenario: str, seed: int, timing: str, args) -> bool:
     """One evaluation, resumable (its eval-rounds/ keep finished rounds); True if it finished."""
-    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed: it loads torch
+    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed
     name = cell(scenario, seed, timing)
     done = evaluate_policy(ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "policy.pt", scenario, "tarl", seed,
                            args.work / name, args.work / f"{name}.log", "--timing", timing, "--eval-rows", "trained",
@@ -49,7 +49,7 @@ def run(scenario: str, seed: int, timing: str, args) -> bool:
 
 
 def rows(path: Path) -> dict:
-    return {row["algo"]: row for row in json.loads(path.read_text())["rows"]} if path.exists() else {}
+    return {row["algo"]: row for row in experiment.read_eval(path)["rows"]} if path.exists() else {}
 
 
 def rate(row: dict, key: str) -> str:
@@ -117,7 +117,7 @@ def main():
             for scenario in args.scenarios:
                 for seed in args.seeds:
                     done = args.results / f"{cell(scenario, seed, timing)}.json"
-                    if not done.exists() or json.loads(done.read_text()).get("world", 1) != WORLD_VERSION:
+                    if not done.exists() or experiment.read_eval(done)["world"] != WORLD_VERSION:
                         run(scenario, seed, timing, args)  # new, or played in an older world (world.py)
     collect(args)
     print((args.results / "summary.md").read_text())

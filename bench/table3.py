@@ -42,7 +42,6 @@ to --out FILE if given, never to results/table3.md, and --readme does not go wit
 import argparse
 import contextlib
 import fcntl
-import json
 import os
 import re
 import shlex
@@ -292,13 +291,13 @@ def load(results: Path, extra=()) -> dict:
     not be Table 3's or an ablation's (NAMES) nor repeat another's row of the same scenario and seed."""
     found = {}
     for path in sorted((results / "runs").glob("*/eval.json")):
-        data, suffix = json.loads(path.read_text()), re.search(r"-(\d+)k(?:-step1-(\d+)k)?$", path.parent.name)
+        data, suffix = experiment.read_eval(path), re.search(r"-(\d+)k(?:-step1-(\d+)k)?$", path.parent.name)
         budget = (int(suffix[1]) * 1000, suffix[2] and int(suffix[2]) * 1000) if suffix else DEFAULT
         for row in data["rows"]:
             found.setdefault(budget, {}).setdefault((data["scenario"], row["algo"]), {})[data["seed"]] = row
     for path in map(Path, extra):
         try:
-            data = json.loads(path.read_text())
+            data = experiment.read_eval(path)
             rows, scenario, seed = data["rows"], data["scenario"], data["seed"]
         except OSError as e:
             raise SystemExit(f"--extra {path}: {e.strerror}") from None
