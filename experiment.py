@@ -10,7 +10,7 @@ every row. Only the entry point (`python tarl.py`) and bench/ import it.
     Table 3's rows              ROWS, make_trainer, trained_rows
     Sec. 5.3, Table 3           rollout, play_round, evaluate, summarize, table
     Sec. 5.5                    summarize: 1 - beta before collisions, the share of each T
-    the command line            parse_args, main; its file: read_eval (eval.json)
+    the command line            parse_args, main; its files: run_name (the run's folder), read_eval (its eval.json)
 """
 from __future__ import annotations
 
@@ -485,7 +485,7 @@ def parse_args(argv=None):
         p.error("--svo LOW HIGH: 0 <= LOW <= HIGH <= 1")
     if args.spawn_gap is not None and not args.spawn_gap > 0:
         p.error("--spawn-gap must be positive [s]")
-    args.out = args.out or Path("runs") / ("lab" if args.preset else "") / f"{args.scenario}-{args.algo}-s{args.seed}"
+    args.out = args.out or Path("runs") / ("lab" if args.preset else "") / run_name(args.scenario, args.algo, args.seed)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / ".write-test").write_text("")
@@ -515,6 +515,11 @@ def machine() -> str:
     except (OSError, StopIteration):
         model = platform.processor() or "unknown CPU"
     return f"{model}, {os.cpu_count()} cores, {platform.machine()}, torch {torch.__version__}"
+
+
+def run_name(scenario: str, algo: str, seed: int, budget: str = "") -> str:
+    """A run's folder: SCENARIO-ALGO-sSEED, another budget than the default after it (-500k, -67k-step1-40k)."""
+    return f"{scenario}-{algo}-s{seed}" + f"-{budget}" * bool(budget)
 
 
 def read_eval(path: Path) -> dict:

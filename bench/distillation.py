@@ -84,7 +84,7 @@ def label_seed(chunk: int) -> int:
 
 
 def policy_path(scenario: str, actor_seed: int) -> Path:
-    return ROOT / "results" / "runs" / f"{scenario}-tarl-s{actor_seed}" / "policy.pt"
+    return ROOT / "results" / "runs" / experiment.run_name(scenario, "tarl", actor_seed) / "policy.pt"
 
 
 def folder(scenario: str, actor_seed: int, out: Path = OUT, student: str | None = None) -> Path:
@@ -363,11 +363,11 @@ def evaluate(args):
                           + ") on the test cases")
 
 
-PAIRED = (("TARL", "runs/{s}-tarl-s{k}/eval.json", "tarl"), ("tarl-fixed-t", "runs/{s}-tarl-fixed-t-s{k}/eval.json",
-          "tarl-fixed-t"), ("tarl-random-t", "runs/{s}-tarl-random-t-s{k}/eval.json", "tarl-random-t"),
-          ("TARL's actor, T = 2", "retime/{s}-tarl-s{k}-fixed2.json", "tarl"),
-          ("TARL's actor, T random", "retime/{s}-tarl-s{k}-random.json", "tarl"),
-          ("the teacher (400 cases)", "rollout/{s}-tarl-s{k}-rollout.json", "tarl"))
+PAIRED = (("TARL", "runs/{run}/eval.json", "tarl"), ("tarl-fixed-t", "runs/{run}/eval.json", "tarl-fixed-t"),
+          ("tarl-random-t", "runs/{run}/eval.json", "tarl-random-t"),
+          ("TARL's actor, T = 2", "retime/{run}-fixed2.json", "tarl"),
+          ("TARL's actor, T random", "retime/{run}-random.json", "tarl"),
+          ("the teacher (400 cases)", "rollout/{run}-rollout.json", "tarl"))  # {run}: the row's run of that seed
 ABLATIONS = ("tarl-fixed-t", "tarl-random-t")  # the verdict's: Table 3's ablation rows, trained with that timing
 ALPHA = 0.05
 LABEL_SETS = re.compile(r"([a-z]+)-s(\d+)(?:-dagger-(.+))?")  # labels/SCENARIO-sSEED[-dagger-STUDENT]
@@ -537,7 +537,7 @@ def report(args) -> str:
                       "[95 % CI, cases resampled] |", "|---|---|---|---|---|---|"]
             res = {}
             for label, path, algo in PAIRED:
-                file = ROOT / "results" / path.format(s=scenario, k=seed)
+                file = ROOT / "results" / path.format(run=experiment.run_name(scenario, algo, seed))
                 if file.exists():
                     res[label] = r = paired(mine, read_row(file, algo), rng)
                     lines.append(f"| {label} | {experiment.read_eval(file)['world']} | {r['other']:.3f} | "

@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+RUNS = ROOT / "results" / "runs"  # Table 3's runs, each with its shipped policy.pt
 sys.path.insert(0, str(ROOT))
+import experiment  # noqa: E402
 from analysis.compare import read_row  # noqa: E402
 from analysis.paired import p_text, paired  # noqa: E402
 
@@ -32,14 +34,14 @@ GAPS = (0.9, 1.8, 2.7)  # [s] mean gaps between departures (Table 1: 1.8 at the 
 
 
 def folder(results: Path, gap: float, scenario: str, algo: str) -> Path:
-    return results / f"gap-{gap:g}" / f"{scenario}-{algo}-s0"
+    return results / f"gap-{gap:g}" / experiment.run_name(scenario, algo, 0)
 
 
 def run(gap: float, scenario: str, algo: str, args) -> bool:
     """One evaluation, resumable (its eval-rounds/ keep finished rounds); True if it finished."""
-    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed: it loads torch
-    out = args.work / f"gap-{gap:g}" / f"{scenario}-{algo}-s0"
-    done = evaluate_policy(ROOT / "results" / "runs" / f"{scenario}-{algo}-s0" / "policy.pt", scenario, algo, 0, out,
+    from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed
+    out = folder(args.work, gap, scenario, algo)
+    done = evaluate_policy(RUNS / experiment.run_name(scenario, algo, 0) / "policy.pt", scenario, algo, 0, out,
                            out.parent / f"{out.name}.log", "--spawn-gap", f"{gap:g}", "--eval-rows", "trained",
                            "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases))
     if done is None:
@@ -93,8 +95,8 @@ def main():
     args = p.parse_args()
     if any(not g > 0 for g in args.gaps):
         p.error("--gaps are mean gaps [s] > 0")
-    missing = [f"{s}-{a}-s0" for s in args.scenarios for a in args.algos
-               if not (ROOT / "results" / "runs" / f"{s}-{a}-s0" / "policy.pt").exists()]
+    missing = [experiment.run_name(s, a, 0) for s in args.scenarios for a in args.algos
+               if not (RUNS / experiment.run_name(s, a, 0) / "policy.pt").exists()]
     if missing and not args.collect_only:
         p.error(f"no shipped policy for: {', '.join(missing)} (results/runs/SCENARIO-ALGO-s0/policy.pt)")
     if not args.collect_only:

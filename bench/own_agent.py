@@ -442,7 +442,8 @@ def evaluate_policy(policy, scenario: str = "roundabout", seeds=(0, 1, 2), name:
     drivers, outs, cfg = {}, {}, EnvConfig(scenario=scenario)
     for seed in seeds:
         policies[seed].name, policies[seed].key = name, keys[seed] or policies[seed].key
-        drivers[seed], outs[seed] = PolicyDriver(policies[seed], seed), Path(out) / f"{scenario}-{name}-s{seed}"
+        drivers[seed] = PolicyDriver(policies[seed], seed)
+        outs[seed] = Path(out) / experiment.run_name(scenario, name, seed)
         try:
             outs[seed].mkdir(parents=True, exist_ok=True)
             (outs[seed] / ".write-test").write_text("")

@@ -17,6 +17,7 @@ from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+RUNS = ROOT / "results" / "runs"  # Table 3's runs, each with its shipped policy.pt
 sys.path.insert(0, str(ROOT))
 import experiment  # noqa: E402
 from world import WORLD_VERSION  # noqa: E402
@@ -27,14 +28,14 @@ TRAINED_WITH = {"fixed=2": "tarl-fixed-t", "random": "tarl-random-t"}  # the abl
 
 
 def cell(scenario: str, seed: int, timing: str) -> str:
-    return f"{scenario}-tarl-s{seed}-{timing.replace('=', '')}"
+    return experiment.run_name(scenario, "tarl", seed) + f"-{timing.replace('=', '')}"  # TARL's run and the timing
 
 
 def run(scenario: str, seed: int, timing: str, args) -> bool:
     """One evaluation, resumable (its eval-rounds/ keep finished rounds); True if it finished."""
     from table3 import commit, evaluate_policy  # bench/table3.py's, here when they are needed
     name = cell(scenario, seed, timing)
-    done = evaluate_policy(ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "policy.pt", scenario, "tarl", seed,
+    done = evaluate_policy(RUNS / experiment.run_name(scenario, "tarl", seed) / "policy.pt", scenario, "tarl", seed,
                            args.work / name, args.work / f"{name}.log", "--timing", timing, "--eval-rows", "trained",
                            "--eval-rounds", str(args.rounds), "--eval-cases", str(args.cases), workers=args.workers)
     if done is None:
@@ -69,7 +70,7 @@ def collect(args):
                                       if (m := re.fullmatch(r"[a-z]+-tarl-s(\d+)-\w+\.json", f.name))})
     for scenario in SCENARIOS:
         for seed in seeds:
-            learned = rows(ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "eval.json").get("tarl")
+            learned = rows(RUNS / experiment.run_name(scenario, "tarl", seed) / "eval.json").get("tarl")
             if learned is None:
                 continue
             mine = {(c["round"], c["case"]): c["outcome"] for c in learned["cases"]}
@@ -79,7 +80,7 @@ def collect(args):
                 if row is not None:
                     entries.append((timing, row))
                 if timing in TRAINED_WITH:
-                    trained = rows(ROOT / "results" / "runs" / f"{scenario}-{TRAINED_WITH[timing]}-s{seed}" /
+                    trained = rows(RUNS / experiment.run_name(scenario, TRAINED_WITH[timing], seed) /
                                    "eval.json").get(TRAINED_WITH[timing])
                     if trained is not None:
                         entries.append((f"{timing}, trained so ({TRAINED_WITH[timing]})", trained))
@@ -108,7 +109,7 @@ def main():
     p.add_argument("--collect-only", action="store_true")
     args = p.parse_args()
     missing = [s for s in args.scenarios for k in args.seeds
-               if not (ROOT / "results" / "runs" / f"{s}-tarl-s{k}" / "policy.pt").exists()]
+               if not (RUNS / experiment.run_name(s, "tarl", k) / "policy.pt").exists()]
     if missing and not args.collect_only:
         p.error(f"no shipped TARL policy for: {', '.join(missing)} (results/runs/SCENARIO-tarl-sSEED/policy.pt)")
     if not args.collect_only:

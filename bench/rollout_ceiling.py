@@ -46,8 +46,9 @@ def tag(timing: str) -> str:
 
 def other_row(scenario: str, timing: str) -> dict:
     """TARL's seed-0 actor under a committed timing: its row of eval.json (the learned timing's) or of results/retime."""
-    return read_row(ROOT / "results" / "runs" / f"{scenario}-tarl-s0" / "eval.json" if timing == "learned"
-                    else ROOT / "results" / "retime" / f"{scenario}-tarl-s0-{tag(timing)}.json", "tarl")
+    run = experiment.run_name(scenario, "tarl", 0)
+    return read_row(ROOT / "results" / "runs" / run / "eval.json" if timing == "learned"
+                    else ROOT / "results" / "retime" / f"{run}-{tag(timing)}.json", "tarl")
 
 
 def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, commit: bool, out: Path = OUT):
@@ -71,7 +72,7 @@ def play(scenario: str, timing: str, rounds: int, cases: int, workers: int, comm
     # every round is kept by now: this gathers them (quietly: nothing was interrupted)
     result = experiment.evaluate(env.cfg, rows, rounds, cases, 0, workers, env, log=lambda line: None, keep=keep)[0]
     env.close()
-    path = out / f"{scenario}-tarl-s0-{tag(timing)}.json"
+    path = out / f"{experiment.run_name(scenario, 'tarl', 0)}-{tag(timing)}.json"
     path.write_text(json.dumps(dict(scenario=scenario, seed=0, world=experiment.world.WORLD_VERSION,
                                     machine=experiment.machine(), rows=[result])))
     return path

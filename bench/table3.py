@@ -104,8 +104,8 @@ TIME_LIMIT = "2:00:00"  # a Slurm task's default --time: a 10^5-step cell at one
 def cell_name(scenario, algo, seed, steps, step_one=None) -> str:
     """S-A-sK; another budget than the default is in the name: S-A-sK-500k (the paper's, Table 2), and a step 1 of
     another length after it: S-A-sK-67k-step1-40k (the ablations with TARL's real-loop budget, docs/RESULTS.md)."""
-    return (f"{scenario}-{algo}-s{seed}" + (f"-{steps // 1000}k" if (steps, step_one) != DEFAULT else "")
-            + (f"-step1-{step_one // 1000}k" if step_one is not None else ""))
+    budget = f"{steps // 1000}k" + (f"-step1-{step_one // 1000}k" if step_one is not None else "")
+    return experiment.run_name(scenario, algo, seed, budget if (steps, step_one) != DEFAULT else "")
 
 
 def budget_text(budget) -> str:

@@ -64,7 +64,7 @@ OUTCOMES = ("arrival", "collision", "timeout")
 def load_tarl(env: world.DrivingEnv, scenario: str, path: Path | None = None, algo: str = "tarl"):
     """The shipped seed-0 policy of TARL (or of a variant with a timing taker, --algo): trainer.driver (learned
     timing), .actor, .timing_taker."""
-    path = path or ROOT / "results" / "runs" / f"{scenario}-{algo}-s0" / "policy.pt"
+    path = path or ROOT / "results" / "runs" / experiment.run_name(scenario, algo, 0) / "policy.pt"
     state = experiment.load_checkpoint(path, scenario, algo)
     tc = tarl.TrainConfig(timing=experiment.checkpoint_timing(state))
     trainer = experiment.make_trainer(algo, env, tc, 0, None, lambda *a: None, state=state)

@@ -466,8 +466,8 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_the_paired
                 assert cells[3] == ", ".join(f"seed {k}: {v:+.{digits}f}" for k, v in
                                              zip(sorted(c["of_a"].keys() & c["of_b"].keys() & set(range(5))),
                                                  c["diffs"])), line
-                long = [[row(runs / f"{c['scenario']}-{'tarl' if algo == 'lattice-idm' else algo}-s{k}-500k" /
-                             "eval.json", algo) for k in range(5) if k in c["of_a"] and k in c["of_b"]]
+                long = [[row(runs / table3.cell_name(c["scenario"], "tarl" if algo == "lattice-idm" else algo, k, 500_000)
+                             / "eval.json", algo) for k in range(5) if k in c["of_a"] and k in c["of_b"]]
                         for algo in (c["a"], c["b"])]
                 only = [0, 0]
                 for r_a, r_b in zip(*long):

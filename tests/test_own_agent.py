@@ -47,7 +47,8 @@ def test_the_planner_as_a_callable_plays_lattice_idms_committed_cases_case_for_c
     rows = own_agent.evaluate_policy(planner, scenario, seeds=(0, 1), name="planner", rounds=2, cases=2, workers=0,
                                      out=tmp_path, log=lines.append)
     for seed, row in rows.items():
-        committed = json.loads((ROOT / "results" / "runs" / f"{scenario}-tarl-s{seed}" / "eval.json").read_text())
+        committed = json.loads((ROOT / "results" / "runs" / experiment.run_name(scenario, "tarl", seed) /
+                                "eval.json").read_text())
         lattice = next(r for r in committed["rows"] if r["algo"] == "lattice-idm")
         lattice = {(c["round"], c["case"]): c for c in lattice["cases"]}
         assert [(c["round"], c["case"]) for c in row["cases"]] == [(r, c) for r in range(2) for c in range(2)]
