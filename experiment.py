@@ -51,8 +51,7 @@ class Row:
     timing_updates: int = 1  # its timing taker's updates per decision (TrainConfig.timing_updates)
 
 
-# The trainers of baselines.py and beyond/variants.py (the rows beyond the paper, PAPER.md, 6) are imported only when
-# one of their rows trains: the import circle of `python tarl.py` holds tarl.py and this module alone.
+# baselines.py and beyond/ (PAPER.md, 6) load only when their row trains: `python tarl.py` needs tarl.py and this module
 ROWS = {
     "tarl": Row("TARL", "taker", True, tarl.Trainer),
     "tarl-fixed-t": Row("TARL, T = 2 fixed", "fixed", True, tarl.Trainer),  # ablation: no timing taker

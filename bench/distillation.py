@@ -467,7 +467,7 @@ def registered_test(out: Path, runs: Path = ROOT / "results" / "runs") -> list[s
             return []
         name = lower_regret(folder)
         mine.append(read_row(folder / f"eval-{name}.json"))
-        theirs.append(read_row(runs / f"{scenario}-{row}-s{k}" / "eval.json", row))
+        theirs.append(read_row(runs / experiment.run_name(scenario, row, k) / "eval.json", row))
         each.append(r := paired(mine[-1], theirs[-1], rng))
         lines.append(f"| {k} | {name} | {r['mine']:.3f} | {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | "
                      f"{p_text(r['p'])} |")
