@@ -547,8 +547,13 @@ def report(args) -> str:
                 best = max(ABLATIONS, key=lambda a: res[a]["other"])
                 r = res[best]
                 verdict = "passes" if r["diff"] > 0 and r["p"] < ALPHA else "does not pass"
-                lines += ["", f"The pre-registered test (the better ablation row here is {best}, "
-                          f"{r['other']:.3f}): student {name} **{verdict}** ({r['diff']:+.3f}, p {p_text(r['p'])}).", ""]
+                if loss == "decision":  # registered apart: the pooled test above, or (the roundabout) no verdict at all
+                    verdict = "the pooled test above" if scenario == REGISTERED["scenario"] else "secondary, no verdict"
+                    lines += ["", f"Against the better ablation row here ({best}, {r['other']:.3f}): {r['diff']:+.3f}, "
+                              f"p {p_text(r['p'])}; {verdict}.", ""]
+                else:
+                    lines += ["", f"The pre-registered test (the better ablation row here is {best}, {r['other']:.3f}): "
+                              f"student {name} **{verdict}** ({r['diff']:+.3f}, p {p_text(r['p'])}).", ""]
                 glance.append(f"| {scenario} | {seed} | {loss} | {'after' if dagger else 'before'} | {name} | "
                               f"{r['mine']:.3f} | {best} {r['other']:.3f} | {r['only_mine']} / {r['only_other']} | "
                               f"{p_text(r['p'])} | {verdict} |")
