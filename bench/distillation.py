@@ -32,9 +32,10 @@ a folder's such student, or a student file; into labels/...-dagger-decision-B, -
 SCENARIO-sSEED[-decision]-dagger). After it, the same rule in that folder names the student of record.
 
 report: first the test registered on 2026-12-07 for the decision students' DAgger round (REGISTERED,
-registered_test: the students of record at the intersection, pooled over seeds 0, 3 and 4); then the teacher's labels measured (distil.reliability, distil.replicated_gain), every student's gate on its
-held-out decisions, then every evaluated student's verdict: the rule registered before any student was evaluated
-(RESULTS.md, "What the timing adds"): a student passes if it beats the better of the trained ablation rows
+registered_test: the students of record at the intersection, pooled over seeds 0, 3 and 4); then the teacher's
+labels measured (distil.reliability, distil.replicated_gain), every student's gate on its held-out decisions, then
+every evaluated mse student's verdict: the rule registered before any student was evaluated
+(docs/RESULTS.md, "What the timing adds"): a student passes if it beats the better of the trained ablation rows
 tarl-fixed-t and tarl-random-t of the seed (the one with more successes on these cases) on the roundabout, McNemar
 p < 0.05 on the 2,000 cases. Beside it, each student against TARL, TARL's actor re-timed with T = 2 and a random T
 (results/retime) and the teacher on its 400 cases (results/rollout).
