@@ -7,8 +7,7 @@ info["cost"] (1 at a collision). A collision ends the episode, so J_c is the col
     SAC-PID  the same, lambda from a PID controller (Stooke, Achiam, Abbeel 2020)
     PPO-Lag  PPO (Schulman et al. 2017) on the Lagrangian advantage (Ray, Achiam, Amodei 2019)
     CPO      Constrained Policy Optimization (Achiam, Held, Tamar, Abbeel 2017)
-
-    python tarl.py --scenario intersection --algo sac-lag|sac-pid|ppo-lag|cpo --steps 100000
+    run one: python tarl.py --scenario intersection --algo sac-lag|sac-pid|ppo-lag|cpo --steps 100000
 
 As OmniSafe and Safe-Policy-Optimization (SafePO) do it, departures commented. Map: SafeRLConfig; J_c and lambda:
 CostConstraint, Lagrange, PIDLagrange (Stooke's Alg. 2); ConstrainedTrainer (on tarl.Trainer); SAC-Lag, SAC-PID:
