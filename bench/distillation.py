@@ -464,9 +464,9 @@ def registered_test(out: Path, runs: Path = ROOT / "results" / "runs") -> list[s
     mine, theirs, each, lines = [], [], [], []
     for k in REGISTERED["seeds"]:
         folder = students_dir(out, scenario, k, True, "decision")
-        if not (folder / "students.json").exists() or not (folder / f"eval-{lower_regret(folder)}.json").exists():
+        name = lower_regret(folder) if (folder / "students.json").exists() else None
+        if name is None or not (folder / f"eval-{name}.json").exists():
             return []
-        name = lower_regret(folder)
         mine.append(read_row(folder / f"eval-{name}.json"))
         theirs.append(read_row(runs / experiment.run_name(scenario, row, k) / "eval.json", row))
         each.append(r := paired(mine[-1], theirs[-1], rng))
