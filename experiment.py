@@ -487,8 +487,7 @@ def parse_args(argv=None):
     args.out = args.out or Path("runs") / ("lab" if args.preset else "") / run_name(args.scenario, args.algo, args.seed)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / ".write-test").write_text("")
-        (args.out / ".write-test").unlink()
+        tempfile.TemporaryFile(dir=args.out).close()  # can it be written?
     except OSError as e:
         raise SystemExit(f"--out {args.out} cannot be written: {e.strerror}") from None
     args.state = None
@@ -508,12 +507,13 @@ def parse_args(argv=None):
 
 
 def machine() -> str:
-    """The CPU this run is on: a seed repeats itself bit for bit on one CPU type only (float kernels differ)."""
-    try:
-        model = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        model = platform.processor() or "unknown CPU"
-    return f"{model}, {os.cpu_count()} cores, {platform.machine()}, torch {torch.__version__}"
+    """The CPU type this run is on: a seed repeats itself bit for bit on one type only (float kernels differ)."""
+    info = Path("/proc/cpuinfo").read_text().split("\n\n")[0] if Path("/proc/cpuinfo").exists() else ""
+    cpu = dict(map(str.strip, line.split(":", 1)) for line in info.splitlines() if ":" in line)  # its first core's
+    kind = [cpu.get("model name") or platform.processor() or "unknown CPU"]  # one name, "AMD EPYC", covers several:
+    kind += [f"{key} {cpu[key]}" for key in ("cpu family", "model", "stepping") if key in cpu]  # these tell them apart
+    kind += [f"flags md5 {hashlib.md5(cpu['flags'].encode()).hexdigest()[:12]}"] * ("flags" in cpu)
+    return ", ".join([*kind, f"{os.cpu_count()} cores", platform.machine(), f"torch {torch.__version__}"])
 
 
 def run_name(scenario: str, algo: str, seed: int, budget: str = "") -> str:

@@ -43,6 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 import tarl  # noqa: E402  (before torch: torch's threads then wait as they do in training)
 import baselines  # noqa: E402
+import experiment  # noqa: E402
 import numpy as np  # noqa: E402
 import planner  # noqa: E402
 import torch  # noqa: E402
@@ -274,12 +275,8 @@ def cases_section(n, rounds) -> dict:
 # ---- report -----------------------------------------------------------------------------------
 
 def machine() -> str:
-    cpuinfo = Path("/proc/cpuinfo")
-    names = [line.split(":", 1)[1].strip() for line in (cpuinfo.read_text().splitlines() if cpuinfo.exists() else [])
-             if line.startswith("model name")]
-    cpu = names[0] if names else platform.processor() or platform.machine()
-    return (f"{cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} torch threads, torch {torch.__version__},"
-            f" Python {platform.python_version()}")
+    """experiment.machine(): the CPU type; and this process's torch threads and Python."""
+    return f"{experiment.machine()}, {torch.get_num_threads()} torch threads, Python {platform.python_version()}"
 
 
 def table(r) -> str:
