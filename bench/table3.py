@@ -268,20 +268,38 @@ SAVE_WAIT = 300  # [s] a cell's time to save its checkpoint (its replay buffer) 
 
 def wall_times(results: Path) -> list[str]:
     """Each cell's wall time (training and evaluation) from the grid's stamps in its log.txt, stretch by stretch:
-    a cell that spans sessions resumes from its checkpoint, and the stretches add up. A stretch's end stamp names
-    every cell that ran beside it; its start stamp, those at its start (all that older stamps have)."""
+    a cell that spans sessions resumes from its checkpoint (each stretch names the step it started from), and the
+    stretches add up. A stretch's end stamp names every cell that ran beside it; its start stamp, those at its start
+    (all that older stamps have). A stretch killed without an end stamp (a machine's stop: no signal, no save) is
+    timed from its progress lines, the steps of each over its rate (~, training only), and its steps since its last
+    checkpoint were trained again by the next stretch."""
     lines = ["| cell | wall time [h] | stretches | each stretch: threads, beside (load at its start) |", "|---|---|---|---|"]
     for path in sorted((results / "runs").glob("*/log.txt")):
-        stamps = re.findall(r"^# grid [^:]+:\d\d:\d\d UTC: (.*)$", path.read_text(), re.M)
-        minutes = [float(m) for text in stamps for m in re.findall(r"after ([\d.]+) min", text)]
-        stretches = []
-        for text in stamps:
-            if text.startswith("start, "):
-                stretches.append(text.removeprefix("start, "))
-            elif stretches and (ran := re.search(r", beside: (.*), load", text)):  # the end names all beside it
-                stretches[-1] = re.sub(r"beside: .*, load", f"beside: {ran[1]}, load", stretches[-1])
+        stretches, minutes, killed = [], [], False  # killed: a stretch timed from its progress lines
+        for text in re.split(r"^(?=# grid [^:]+:\d\d:\d\d UTC: start, )", path.read_text(), flags=re.M):
+            stamps = re.findall(r"^# grid [^:]+:\d\d:\d\d UTC: (.*)$", text, re.M)
+            if not stamps:
+                continue
+            said = stamps[0].removeprefix("start, ") if stamps[0].startswith("start, ") else None
+            if said and (ran := re.search(r", beside: (.*), load", stamps[-1])) and len(stamps) > 1:
+                said = re.sub(r"beside: .*, load", f"beside: {ran[1]}, load", said)  # the end names all beside it
+            start = re.search(r"^training .* from step (\d+) to", text, re.M)
+            start = int(start[1]) if start else 0  # a resumed stretch: the step of its checkpoint
+            said = said and said + f", from step {start:,}" * bool(start)
+            if ended := [float(m) for stamp in stamps for m in re.findall(r"after ([\d.]+) min", stamp)]:
+                minutes.append(sum(ended))
+            elif said and (steps := re.findall(r"^step +(\d+)/(\d+) .*? (\d+) steps/s, (?:training )?ETA +([\d.]*)",
+                                               text, re.M)):  # the rate from the ETA where it has one: 4 digits
+                step = [start, *(int(k) for k, *_ in steps)]
+                rates = [(int(n) - int(k)) / (60 * float(eta)) if eta and float(eta) else max(int(r), 1)
+                         for k, n, r, eta in steps]
+                minutes.append(sum((b - a) / r for a, b, r in zip(step, step[1:], rates)) / 60)
+                said, killed = said + f", killed without a stamp at step {step[-1]:,} (~{minutes[-1]:.0f} min)", True
+            if said:
+                stretches.append(said)
         if minutes:
-            lines.append(f"| {path.parent.name} | {sum(minutes) / 60:.2f} | {len(minutes)} | {'; '.join(stretches)} |")
+            lines.append(f"| {path.parent.name} | {'~' * killed}{sum(minutes) / 60:.2f} | {len(minutes)} | "
+                         f"{'; '.join(stretches)} |")
     return lines
 
 
@@ -673,7 +691,9 @@ def collect(args, extra=(), out: Path | None = None) -> str:
               "## Wall time of each cell", "", "From the grid's stamps in each cell's log.txt (cells run before the "
               "stamps have none): training and evaluation, summed over the stretches a cell ran in, and for each stretch "
               "the cells that ran beside it at any time (a stretch stamped before 2026-12-03 22:00 UTC names only those "
-              "beside it when it started) and the load when it started.", "", *wall_times(args.results), ""]
+              "beside it when it started), the load when it started and, if it resumed, the step it resumed from. A "
+              "stretch killed with no signal (a machine's stop) has no end stamp: ~, timed from its progress lines "
+              "(training only).", "", *wall_times(args.results), ""]
     text = "\n".join(lines)
     if out is not None or not extra:
         (out or committed).parent.mkdir(parents=True, exist_ok=True)  # no cell finished yet: no RESULTS either

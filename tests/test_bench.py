@@ -201,6 +201,25 @@ def test_table3_adds_a_cells_wall_time_over_the_stretches_it_ran_in(tmp_path):
                                               "roundabout-cpo-s0-500k + intersection-cpo-s0-500k, load 0.1 |")
 
 
+
+def test_table3_times_a_stretch_killed_without_a_stamp_from_its_progress_lines(tmp_path):
+    """A machine's stop kills a cell with no signal: no end stamp. Its stretch is timed from its progress lines, each
+    one's steps over its rate, the rate from the ETA (4 digits; the printed rate, 0 across a suspended task, is not),
+    and marked ~; the next stretch names the step its checkpoint resumed from."""
+    (tmp_path / "runs" / "roundabout-tarl-s1-500k").mkdir(parents=True)
+    (tmp_path / "runs" / "roundabout-tarl-s1-500k" / "log.txt").write_text(
+        "# grid 2026-12-07 15:00:00 UTC: start, 1 thread(s), beside: unknown (Slurm task 1_0 on vm), load 0.5\n"
+        "training tarl on the roundabout from step 0 to 500000 -> runs/grid/roundabout-tarl-s1-500k\n"
+        "step    2000/500000 [Alg. 1 step 1, SAC]   315 steps/s, training ETA after the warm-up | last 11 ...\n"
+        "step    6000/500000 [Alg. 1 step 1, SAC]     0 steps/s, training ETA 4940.0 min | last 20 ...\n"
+        "# grid 2026-12-07 16:00:00 UTC: start, 1 thread(s), beside: unknown (Slurm task 5_0 on vm), load 0.4\n"
+        "training tarl on the roundabout from step 4000 to 500000 -> runs/grid/roundabout-tarl-s1-500k\n"
+        "# grid 2026-12-07 18:00:00 UTC: finished after 120.0 min, exit code 0, beside: unknown, load 1.0\n")
+    # 2000 steps at 315 steps/s, then 4000 at 494,000 / (60 * 4940) = 1 2/3 steps/s: 6.3 s + 2400 s, 40.1 min
+    assert table3.wall_times(tmp_path)[2] == (
+        "| roundabout-tarl-s1-500k | ~2.67 | 2 | 1 thread(s), beside: unknown (Slurm task 1_0 on vm), load 0.5, killed "
+        "without a stamp at step 6,000 (~40 min); 1 thread(s), beside: unknown, load 0.4, from step 4,000 |")
+
 GRID = """
 import sys
 from argparse import Namespace
