@@ -9,7 +9,8 @@ case, step by step), Fig. 7 (a failure case) and the numbers of Sec. 5.5 (1 - be
     python bench/figures.py constraint [--runs results/runs] [--out results/fig_constraint.png]
 
 training  Fig. 5: one column per scenario, the episode return and the collision rate over training
-          steps of every row of Table 3 found as RUNS/SCENARIO-ALGO-sSEED/train_log.csv. Real-environment
+          steps of every row of Table 3 found as RUNS/SCENARIO-ALGO-sSEED/train_log.csv, and below them,
+          where a row blends, its episodes' mean beta (the actor's share: where the timing settles). Real-environment
           episodes only (Alg. 1 step 1 and the actor loop; the timing imagination is left out). Each seed's
           episodes are averaged over bins of --bin steps (an episode counts in the bin where it ended);
           the line is the mean over seeds, the band their min-max. The dotted line: the end of TARL's
@@ -66,6 +67,7 @@ import experiment  # noqa: E402
 import scene  # noqa: E402
 import tarl  # noqa: E402
 import world  # noqa: E402
+from analysis import claims  # noqa: E402
 from table3 import ABLATIONS, NAMES, ROWS, SCENARIOS  # noqa: E402
 
 plt.rcParams.update({"font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11, "legend.fontsize": 10,
@@ -100,7 +102,8 @@ def name(algo: str) -> str:
 
 
 def read_log(path: Path) -> dict:
-    """train_log.csv -> arrays step, loop, episode_return, collision (one entry per episode)."""
+    """train_log.csv -> arrays step, loop, episode_return, collision and mean_beta (nan where the episode had no
+    beta: step 1, or a row without a timing) (one entry per episode)."""
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
@@ -109,7 +112,8 @@ def read_log(path: Path) -> dict:
         return {"step": np.array([int(r["step"]) for r in rows], dtype=np.int64),
                 "loop": np.array([r["loop"] for r in rows], dtype=object),
                 "episode_return": np.array([float(r["episode_return"]) for r in rows]),
-                "collision": np.array([float(r["collision"]) for r in rows])}
+                "collision": np.array([float(r["collision"]) for r in rows]),
+                "mean_beta": np.array([float(r.get("mean_beta") or "nan") for r in rows])}
     except (OSError, ValueError, TypeError) as e:
         fail(f"cannot read {path}: {e}")
 
@@ -139,9 +143,9 @@ def step_one_end(log: dict) -> int | None:
 
 
 def binned(log: dict, key: str, bin_steps: int, n_bins: int, min_episodes: int = MIN_EPISODES) -> np.ndarray:
-    """The mean of `key` over the real-environment episodes ending in each bin of bin_steps (nan if fewer than
-    min_episodes: e.g. the bin where step 1 ends just before the timing imagination's first steps)."""
-    real = log["loop"] != "imagination"
+    """The mean of `key` over the real-environment episodes ending in each bin of bin_steps that have it (nan if
+    fewer than min_episodes: e.g. the bin where step 1 ends just before the timing imagination's first steps)."""
+    real = (log["loop"] != "imagination") & np.isfinite(log[key])
     idx = np.minimum((log["step"][real] - 1) // bin_steps, n_bins - 1)
     count = np.bincount(idx, minlength=n_bins)
     total = np.bincount(idx, weights=log[key][real], minlength=n_bins)
@@ -174,7 +178,11 @@ def training(args):
     n_bins = max(1, longest // bin_steps)  # a last, partial bin joins the one before (runs overshoot a little)
     scenarios = [s for s in SCENARIOS if any(sc == s for sc, _ in runs)]
     algos = [a for a in ORDER if any(al == a for _, al in runs)] + sorted({a for _, a in runs} - set(ORDER))
-    fig, axes = plt.subplots(2, len(scenarios), figsize=(6.5 * len(scenarios), 8), squeeze=False, sharex="col")
+    # a third row where a drawn run has a timing: beta, the actor's share of the executed action (Eqs. (6), (12))
+    keys = ("episode_return", "collision") + ("mean_beta",) * any(
+        np.isfinite(log["mean_beta"]).any() for seeds in runs.values() for log in seeds.values())
+    fig, axes = plt.subplots(len(keys), len(scenarios), figsize=(6.5 * len(scenarios), 4 * len(keys)), squeeze=False,
+                             sharex="col")
     x = (np.arange(n_bins) + 0.5) * bin_steps
     drawn, step_ones = {}, set()
     for col, scenario in enumerate(scenarios):
@@ -183,7 +191,7 @@ def training(args):
             if not seeds:
                 continue
             color = COLORS.get(algo, f"C{len(drawn) % 10}")
-            for row, key in enumerate(("episode_return", "collision")):
+            for row, key in enumerate(keys):
                 mean, low, high = over_seeds(np.array([binned(log, key, bin_steps, n_bins) for log in seeds.values()]))
                 ax = axes[row, col]
                 ax.fill_between(x, low, high, color=color, alpha=0.18, linewidth=0)
@@ -195,15 +203,18 @@ def training(args):
                     end = step_one_end(log)
                     if end is not None and algo == "tarl":
                         step_ones.add(end)
-                        for row in range(2):
+                        for row in range(len(keys)):
                             axes[row, col].axvline(end, color="k", ls=":", lw=1.3)
-        axes[1, col].set_xlim(0, max(int(log["step"].max()) for (sc, _), seeds in runs.items() if sc == scenario
+        axes[-1, col].set_xlim(0, max(int(log["step"].max()) for (sc, _), seeds in runs.items() if sc == scenario
                                      for log in seeds.values() if len(log["step"])))
         axes[0, col].set_title(f"{scenario.capitalize()} scenario")
         axes[0, col].set_ylabel("episode return")
         axes[1, col].set_ylabel("collision rate")
         axes[1, col].set_ylim(-0.03, 1.03)
-        axes[1, col].set_xlabel("training step (simulator steps)")
+        if len(keys) > 2:
+            axes[2, col].set_ylabel("mean beta of an episode")
+            axes[2, col].set_ylim(-0.03, 1.03)
+        axes[-1, col].set_xlabel("training step (simulator steps)")
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
             ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0), useMathText=True)
@@ -214,7 +225,9 @@ def training(args):
     # below the panels, in inches from the bottom: the caption, then the legend
     caption = textwrap.fill(f"Real-environment episodes only (timing imagination excluded); each seed's episodes averaged "
                             f"over bins of {bin_steps:,} steps (blank: fewer than {MIN_EPISODES} episodes). Line: mean over "
-                            "seeds; band: min-max over seeds.", 75 * len(scenarios))
+                            "seeds; band: min-max over seeds." + " Mean beta: over an episode's steps, the actor's share of "
+                            "the executed acceleration (Eqs. (6), (12); 1: the actor alone, 0: the planner), of the rows "
+                            "that blend (not in step 1)." * (len(keys) > 2), 75 * len(scenarios))
     ncol = min(4 if len(scenarios) > 1 else 2, len(handles))
     height = fig.get_figheight()
     caption_top = 0.1 + 0.19 * (caption.count("\n") + 1)
@@ -224,6 +237,23 @@ def training(args):
     fig.suptitle("Training curves (Fig. 5)", fontsize=13)
     fig.tight_layout(rect=(0, (legend_top + 0.05) / height, 1, 1))
     save(fig, args.out)
+    for line in settling(runs, longest):
+        print(line)
+
+
+def settling(runs: dict, steps: int) -> list[str]:
+    """Is a learned timing still changing at the end of training? For each row with a timing taker and two or more
+    seeds: its episodes' mean beta over the last tenth of the steps against the tenth before, the difference paired
+    by seed (analysis.claims.paired_t: Student's paired t, two-sided), Holm-adjusted over the rows tested."""
+    tests = []
+    for (scenario, algo), seeds in sorted(runs.items()):
+        if experiment.ROWS.get(algo) and experiment.ROWS[algo].timing == "taker" and len(seeds) >= 2:
+            tenths = {k: binned(log, "mean_beta", steps // 10, 10, 1)[-2:] for k, log in seeds.items()}
+            tests.append((f"{scenario}, {name(algo)}", claims.paired_t({k: v[1] for k, v in tenths.items()},
+                                                                      {k: v[0] for k, v in tenths.items()})))
+    return [f"{row}: mean beta, the last tenth of training against the tenth before: {t['d']:+.3f} (95 % CI "
+            f"{t['ci'][0]:+.3f} to {t['ci'][1]:+.3f}), paired t p {t['p']:.2g} (Holm {p:.2g}), n = {t['n']}, higher "
+            f"on {int((t['diffs'] > 0).sum())}" for (row, t), p in zip(tests, claims.holm([t["p"] for _, t in tests]))]
 
 
 def save(fig, out: Path):

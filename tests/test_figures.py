@@ -66,6 +66,22 @@ def write_log(folder: Path, rows):
     (folder / "train_log.csv").write_text(HEADER + "".join(",".join(map(str, r)) + "\n" for r in rows))
 
 
+def test_settling_tests_a_learned_timing_over_the_last_two_tenths_of_training(tmp_path):
+    """Is the timing taker still changing? Its episodes' mean beta over the last tenth against the tenth before,
+    paired by seed; rows whose timing is fixed (T = 2, T random, SAC-Lattice's switch) have none to learn."""
+    for seed, (before, last) in enumerate([(0.2, 0.3), (0.1, 0.4)]):
+        write_log(tmp_path / f"roundabout-tarl-s{seed}", [(100, "step1", 0, 0, 1, 0, "", ""),
+                                                          (850, "real", 9, 1, 0, 0, 9.0, before),
+                                                          (880, "imagination", 9, 1, 0, 0, 9.0, 0.9),
+                                                          (950, "real", 9, 1, 0, 0, 9.0, last)])
+        write_log(tmp_path / f"roundabout-tarl-fixed-t-s{seed}", [(850, "real", 9, 1, 0, 0, 9.0, 0.5),
+                                                                  (950, "real", 9, 1, 0, 0, 9.0, 0.5)])
+    # differences 0.1 and 0.3: d = 0.2, sd = 0.141, t = 2 on one degree of freedom, p = 0.295
+    assert figures.settling(figures.find_runs(tmp_path), 1000) == [
+        "roundabout, TARL: mean beta, the last tenth of training against the tenth before: +0.200 (95 % CI -1.071 to "
+        "+1.471), paired t p 0.3 (Holm 0.3), n = 2, higher on 2"]
+
+
 def test_training_draws_real_episodes_of_a_tiny_log_and_rejects_a_missing_folder(tmp_path, capsys):
     runs = tmp_path / "runs"
     # step 1 until 300, then the imagination (returns of 99, which must not show) and the real environment
@@ -78,6 +94,8 @@ def test_training_draws_real_episodes_of_a_tiny_log_and_rejects_a_missing_folder
     assert figures.step_one_end(log) == 300
     np.testing.assert_allclose(figures.binned(log, "episode_return", 350, 2, 1), [-5.0, 10.0])  # no 99 in either bin
     np.testing.assert_allclose(figures.binned(log, "collision", 350, 2, 1), [0.5, 0.5])
+    # beta: the real loop's episodes only, none in step 1 (no blend): the third row, where the timing settles
+    np.testing.assert_allclose(figures.binned(log, "mean_beta", 350, 2, 1), [np.nan, 0.2])
     # a bin of one episode (the last of step 1, say) is blank by default: one episode is not a rate
     np.testing.assert_allclose(figures.binned(log, "collision", 350, 2, 2), [0.5, 0.5])
     np.testing.assert_allclose(figures.binned(log, "collision", 250, 3), [np.nan, np.nan, np.nan])
