@@ -515,10 +515,10 @@ def claims_block(found: dict) -> list[str]:
     claim of analysis.claims.CLAIMS, one family; at the paper's 5 x 10^5 steps the thesis and TARL against its
     planner, another family, interim until every claim has its planned seeds. Per claim: the paper's two values;
     both rows' means over the paired seeds with n of the planned n; A - B with the paired t's 95 % CI; its p raw and
-    Holm-adjusted over the family; the verdict (of record, or interim); at 10^5, the seeds to settle an undecided
-    claim, A's wins seed by seed, the sign-flip p and, secondary, every seed of each row: Welch's A - B with its 95 %
-    CI and P(A > B); at 5 x 10^5, A - B seed by seed and the cases only A / only B arrives in. Each claim has an id,
-    C1.. at 10^5 and P1.. at 5 x 10^5 (CLAIMS' order), by which the findings name the rows they rest on."""
+    Holm-adjusted over the family; the verdict (of record, or interim); the seeds to settle an undecided claim of
+    record; at 10^5, A's wins seed by seed, the sign-flip p and, secondary, every seed of each row: Welch's A - B with
+    its 95 % CI and P(A > B); at 5 x 10^5, A - B seed by seed and the cases only A / only B arrives in. Each claim
+    has an id, C1.. at 10^5 and P1.. at 5 x 10^5 (CLAIMS' order), by which the findings name the rows they rest on."""
     short, long = claim_rows(found), claim_rows(found, PAPER_BUDGET[0])
     lines = [caption(short, STEPS), "",
              "| # | claim | the paper | paired seeds: A vs B (n of planned) | A - B [95 % CI] (paired t) | p | p, Holm | "
@@ -526,30 +526,35 @@ def claims_block(found: dict) -> list[str]:
              "A - B [95 % CI] (Welch) | P(A > B) [95 % CI] |", "|---" * 13 + "|"]
     for i, c in enumerate(short, 1):
         name, digits, paper = claim_text(c)
-        settle = "-" if c["verdict"] != "undecided" else (f"> {claims.MOST_SEEDS:,}" if c["settle"] is None
-                                                         else str(c["settle"]))
         welch = "-" if c["welch"] is None else ci_text(c["welch"]["d"], c["welch"]["ci"], digits)
         every = " vs ".join(f"{m:.{digits}f} (n = {n})" for m, n in zip(c["means"], c["n_all"]))
         chance = "-" if c["improvement"] is None else "{:.2f} [{:.2f}, {:.2f}]".format(*c["improvement"])
         lines.append(f"| C{i} | {name} | {paper} | {c['paired_means'][0]:.{digits}f} vs "
                      f"{c['paired_means'][1]:.{digits}f} "
                      f"({c['n']} of {len(c['planned'])}) | {ci_text(c['d'], c['ci'], digits)} | {p_cell(c['p'])} | "
-                     f"{p_cell(c['p_holm'])} | **{c['verdict']}** | {settle} | {c['wins'][0]} / {c['wins'][1]} | "
+                     f"{p_cell(c['p_holm'])} | **{c['verdict']}** | {settle_text(c)} | {c['wins'][0]} / {c['wins'][1]} | "
                      f"{p_cell(c['sign_flip'])} | {every}: {welch} | {chance} |")
     lines += ["", caption(long, PAPER_BUDGET[0]), "",
               "| # | claim | the paper | paired seeds: A vs B (n of planned) | A - B, seed by seed | "
-              "A - B [95 % CI] (paired t) | p | p, Holm | verdict | only A / only B arrives (cases of the paired "
-              "seeds) |",
-              "|---" * 10 + "|"]
+              "A - B [95 % CI] (paired t) | p | p, Holm | verdict | seeds to settle | only A / only B arrives (cases of "
+              "the paired seeds) |",
+              "|---" * 11 + "|"]
     for i, c in enumerate(long, 1):
         name, digits, paper = claim_text(c)
         each = ", ".join(f"seed {k}: {d:+.{digits}f}" for k, d in zip(c["seeds"], c["diffs"]))
         lines.append(f"| P{i} | {name} | {paper} | {c['paired_means'][0]:.{digits}f} vs "
                      f"{c['paired_means'][1]:.{digits}f} ({c['n']} of {len(c['planned'])}) | {each} | "
                      f"{'-' if c['ci'] is None else ci_text(c['d'], c['ci'], digits)} | {p_cell(c['p'])} | "
-                     f"{p_cell(c['p_holm'])} | **{c['verdict']}** | "
+                     f"{p_cell(c['p_holm'])} | **{c['verdict']}** | {settle_text(c)} | "
                      f"{c['cases']['only_mine']} / {c['cases']['only_other']} |")
     return lines
+
+
+def settle_text(c: dict) -> str:
+    """An undecided claim's seeds to settle (`claims.seeds_to_settle`), "> MOST_SEEDS" where none is near; else -."""
+    if c["verdict"] != "undecided":
+        return "-"
+    return f"> {claims.MOST_SEEDS:,}" if c["settle"] is None else str(c["settle"])
 
 
 def caption(rows: list[dict], steps: int) -> str:

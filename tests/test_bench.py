@@ -392,7 +392,8 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_the_paired
     else undecided), the seeds to settle (the paired t's power at the claim's Holm level, by the noncentral t,
     reaches 80 % there and not one seed before); A's wins and the exact sign-flip p; the secondary Welch test over
     every seed and P(A > B) by Mann-Whitney's U. A table whose claims are not all at their planned n says interim
-    and calls no verdict; at 5 x 10^5, each seed's difference and the cases only A / only B arrives in."""
+    and calls no verdict, nor seeds to settle; at 5 x 10^5, each seed's difference and the cases only A / only B
+    arrives in."""
     root = Path(__file__).resolve().parents[1]
     runs = root / "results" / "runs"
     label = {name: algo for algo, name in table3.NAMES.items()}
@@ -481,6 +482,16 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_the_paired
                        "equivalent within ±0.03" if i in tost_holm and tost_holm[i] < 0.05 else "undecided")
             assert cells[column + 3] == f"**{verdict}**", line
             seen.add(verdict)
+            settle = cells[7 if steps == 100_000 else 8]
+            if verdict == "undecided":
+                sd = c["diffs"].std(ddof=1)
+                if settle == f"> {10_000:,}":
+                    assert power(10_000, d, sd, levels[i]) < 0.8, line
+                else:
+                    n = int(settle)
+                    assert power(n, d, sd, levels[i]) >= 0.8 > (power(n - 1, d, sd, levels[i]) if n > 2 else 0), line
+            else:
+                assert settle == "-", line
             if steps == 500_000:
                 assert cells[3] == ", ".join(f"seed {k}: {v:+.{digits}f}" for k, v in
                                              zip(sorted(c["of_a"].keys() & c["of_b"].keys() & set(range(5))),
@@ -494,17 +505,8 @@ def test_the_claims_tables_verdicts_follow_from_the_committed_data_by_the_paired
                                for r in (r_a, r_b)]
                     only = [only[j] + sum(outcome[j][k] and not outcome[1 - j][k] for k in outcome[0])
                             for j in (0, 1)]
-                assert cells[8] == f"{only[0]} / {only[1]}", line
+                assert cells[9] == f"{only[0]} / {only[1]}", line
                 continue
-            if verdict == "undecided":
-                sd = c["diffs"].std(ddof=1)
-                if cells[7] == f"> {10_000:,}":
-                    assert power(10_000, d, sd, levels[i]) < 0.8, line
-                else:
-                    n = int(cells[7])
-                    assert power(n, d, sd, levels[i]) >= 0.8 > (power(n - 1, d, sd, levels[i]) if n > 2 else 0), line
-            else:
-                assert cells[7] == "-", line
             assert cells[8] == f"{(c['diffs'] > 0).sum()} / {c['n']}", line
             flips = [abs(np.dot(signs, c["diffs"])) >= abs(c["diffs"].sum()) - 1e-12
                      for signs in itertools.product((-1, 1), repeat=c["n"])]
